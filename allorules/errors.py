@@ -1,0 +1,70 @@
+"""User-facing errors.
+
+Every failure a user can fix raises a subclass of :class:`AllorulesError`. Its message is one
+line that says what is wrong and what to do; the CLI prints it to stderr without a traceback
+(unless ``--debug``) and exits non-zero. Programming errors stay ordinary exceptions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+
+class AllorulesError(Exception):
+    """Base class for errors whose message is meant for the user."""
+
+    exit_code: int = 2
+
+
+class MeshError(AllorulesError):
+    """The input mesh cannot be read or used (unreadable, empty, NaN, too small, ...)."""
+
+
+class BasisError(AllorulesError):
+    """The harmonic basis could not be computed to the required accuracy."""
+
+
+class SegmentationError(AllorulesError):
+    """Regions could not be found or a segmentation/merge file is invalid."""
+
+
+class MeasurementError(AllorulesError):
+    """A quantity (volume, limb cross-section, length, ...) cannot be measured on this mesh."""
+
+
+class PluginError(AllorulesError):
+    """A plugin failed to load or misbehaved."""
+
+
+class ScalingError(AllorulesError):
+    """A scaling run did not reach its targets. ``closest`` holds the best result reached, if any."""
+
+    def __init__(self, message: str, closest: Any = None):
+        super().__init__(message)
+        self.closest = closest
+
+
+@dataclass
+class SourceLocation:
+    """Where in a file something was written (1-based line; column optional)."""
+
+    path: str | Path
+    line: int | None = None
+    column: int | None = None
+
+    def __str__(self) -> str:
+        text = str(self.path)
+        if self.line is not None:
+            text += f":{self.line}"
+            if self.column is not None:
+                text += f":{self.column}"
+        return text
+
+
+class RulesetError(AllorulesError):
+    """A ruleset (or merge file) is invalid; the message names file and line."""
+
+    def __init__(self, message: str, location: SourceLocation | None = None):
+        self.location = location
+        super().__init__(f"{location}: {message}" if location else message)
