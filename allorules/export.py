@@ -1,0 +1,456 @@
+"""Writing meshes that users open in Blender: formats, atomic files, what is carried over.
+
+:func:`save_mesh` writes OBJ, PLY, STL, GLB or OFF (chosen by the output's extension). Every file
+is written to a temporary file in the destination folder and moved into place with
+``os.replace``, so a failure never leaves a half-written file; an existing file (and above all
+the input) is never overwritten unless the caller asks.
+
+When the caller passes ``source`` (the input's ``trimesh.Trimesh`` as loaded, with its UVs and
+material) and positions for the *source's* vertex layout (same vertex count and faces — see
+:meth:`allorules.preparation.PreparedMesh.source_positions`), the output keeps the input's
+texture coordinates and material references, with normals recomputed for the new shape:
+
+* OBJ from an OBJ input: the input file is rewritten line by line — new ``v`` positions, fresh
+  ``vn`` normals, and everything else (``vt``, ``mtllib``, ``usemtl``, groups, smoothing) kept
+  as it was, so multi-material files stay multi-material. The ``.mtl`` and its textures are
+  referenced, and copied next to the output only when they are missing there.
+* GLB, PLY, and OBJ from other inputs: through trimesh, with the source's visual (UVs,
+  material) attached.
+* STL and OFF hold geometry only.
+
+Helpers :func:`atomic_write` / :func:`atomic_path` are shared by the render and report modules.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from .errors import MeshError
+
+log = logging.getLogger("allorules.export")
+
+SUPPORTED_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")
+
+
+@dataclass
+class SaveResult:
+    """What :func:`save_mesh` wrote and what it could carry over from the input."""
+
+    path: Path
+    format: str
+    carried: list[str] = field(default_factory=list)     # e.g. "UVs", "materials (mtllib x.mtl)"
+    notes: list[str] = field(default_factory=list)       # things the user should know
+    extra_files: list[Path] = field(default_factory=list)  # .mtl / textures written beside it
+
+
+# --------------------------------------------------------------------------------------------
+# Atomic files
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path in ``path``'s folder; on success move it onto ``path``.
+
+    On any exception the temporary file is removed and ``path`` is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(handle)
+    temporary = Path(temporary)
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+
+
+def atomic_write(path: str | Path, write: Callable[[Any], None] | bytes | str) -> None:
+    """Write ``path`` atomically: ``write`` is bytes/str, or a function given a binary file."""
+    with atomic_path(path) as temporary:
+        with open(temporary, "wb") as stream:
+            if callable(write):
+                write(stream)
+            else:
+                stream.write(write.encode("utf-8") if isinstance(write, str) else write)
+            stream.flush()
+            os.fsync(stream.fileno())
+
+
+# --------------------------------------------------------------------------------------------
+# Output names
+
+
+def _same_file(first: Path, second: Path) -> bool:
+    if first.resolve() == second.resolve():
+        return True
+    try:
+        return first.exists() and second.exists() and os.path.samefile(first, second)
+    except OSError:
+        return False
+
+
+def default_output_path(input_path: str | Path, *, suffix: str = "_scaled", extension: str | None = None) -> Path:
+    """A name beside the input that does not exist yet: ``horse.obj`` → ``horse_scaled.obj``,
+    then ``horse_scaled-2.obj``, ``horse_scaled-3.obj``, …"""
+    input_path = Path(input_path)
+    extension = extension or input_path.suffix
+    candidate = input_path.with_name(f"{input_path.stem}{suffix}{extension}")
+    number = 2
+    while candidate.exists() or _same_file(candidate, input_path):
+        candidate = input_path.with_name(f"{input_path.stem}{suffix}-{number}{extension}")
+        number += 1
+    return candidate
+
+
+# --------------------------------------------------------------------------------------------
+# Normals
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals: n_i ∝ Σ_{faces f ∋ i} (b − a) × (c − a).
+
+    A vertex with no (non-degenerate) face gets (0, 0, 1) rather than NaN.
+    """
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    corner = vertices[faces]
+    face_normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])  # 2·area·n
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normal)
+    length = np.linalg.norm(normals, axis=1)
+    good = length > 0
+    normals[good] /= length[good, None]
+    normals[~good] = (0.0, 0.0, 1.0)
+    return normals
+
+
+# --------------------------------------------------------------------------------------------
+# Saving
+
+
+def save_mesh(
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    source: Any = None,
+    overwrite: bool = False,
+    input_path: str | Path | None = None,
+) -> SaveResult:
+    """Write a triangle mesh; the format follows ``path``'s extension (.obj .ply .stl .glb .off).
+
+    ``source`` is the input's ``trimesh.Trimesh`` as loaded. When ``vertices`` has the source's
+    vertex count and ``faces`` equals the source's faces (the scaling keeps connectivity; use
+    ``PreparedMesh.source_positions`` to get there), UVs and materials are carried over and
+    normals recomputed. ``input_path`` is never overwritten unless ``overwrite=True``, and neither
+    is any other existing file. Raises :class:`MeshError` for non-finite positions, bad faces,
+    unsupported extensions and refused overwrites.
+    """
+    path = Path(path)
+    extension = path.suffix.lower()
+    if extension not in SUPPORTED_FORMATS:
+        raise MeshError(
+            f"{path}: cannot write {extension or 'a file without extension'}; "
+            f"name the output with one of {', '.join(SUPPORTED_FORMATS)}"
+        )
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise MeshError(f"{path}: vertices must be an (n, 3) array, got shape {vertices.shape}")
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+        raise MeshError(
+            f"{path}: not written, {bad} vertex position(s) are NaN or infinite "
+            "(the scaling diverged; try a smaller ratio or more steps)"
+        )
+    if faces.ndim != 2 or faces.shape[1] != 3 or (len(faces) and not np.issubdtype(faces.dtype, np.integer)):
+        raise MeshError(f"{path}: faces must be an (m, 3) integer array, got shape {faces.shape}")
+    faces = faces.astype(np.int64)
+    if len(faces) == 0:
+        raise MeshError(f"{path}: not written, the mesh has no faces")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshError(f"{path}: not written, faces refer to vertices that do not exist")
+
+    input_path = Path(input_path) if input_path is not None else None
+    if input_path is not None and _same_file(path, input_path) and not overwrite:
+        raise MeshError(f"{path}: this is the input mesh; choose another output name or pass --overwrite")
+    if path.exists() and not overwrite:
+        raise MeshError(f"{path}: already exists; choose another output name or pass --overwrite")
+    if path.is_dir():
+        raise MeshError(f"{path}: is a folder; give an output file name")
+
+    result = SaveResult(path=path, format=extension.lstrip("."))
+    carry = _can_carry(source, vertices, faces, result)
+
+    if extension == ".obj" and carry and input_path is not None and input_path.suffix.lower() == ".obj" and input_path.is_file():
+        text = _rewrite_obj(input_path, source, vertices, result)
+        if text is not None:
+            atomic_write(path, text)
+            _bring_materials(input_path, path, text, overwrite, result)
+            _report(result)
+            return result
+
+    mesh = _output_trimesh(vertices, faces, source if carry else None)
+    if extension == ".obj":
+        _save_obj_with_trimesh(path, mesh, carry, overwrite, result)
+    elif extension == ".ply":
+        from trimesh.exchange.ply import export_ply
+
+        data = export_ply(mesh, encoding="binary", vertex_normal=True)
+        atomic_write(path, data)
+        result.carried.append("normals recomputed")
+        if carry and _has_uv(mesh):
+            result.carried.append("UVs")
+    elif extension == ".glb":
+        from trimesh.exchange.gltf import export_glb
+
+        data = export_glb(mesh.scene(), include_normals=True)
+        atomic_write(path, data)
+        result.carried.append("normals recomputed")
+        if carry and _has_uv(mesh):
+            result.carried.append("UVs")
+        if carry and getattr(mesh.visual, "material", None) is not None:
+            result.carried.append("material (embedded)")
+    elif extension == ".stl":
+        from trimesh.exchange.stl import export_stl
+
+        atomic_write(path, export_stl(mesh))
+        if source is not None and _has_uv(source):
+            result.notes.append("STL holds geometry only: UVs and materials are not in the output")
+    else:  # .off
+        from trimesh.exchange.off import export_off
+
+        atomic_write(path, export_off(mesh))
+        if source is not None and _has_uv(source):
+            result.notes.append("OFF holds geometry only: UVs and materials are not in the output")
+    _report(result)
+    return result
+
+
+def _report(result: SaveResult) -> None:
+    for note in result.notes:
+        log.warning("%s: %s", result.path.name, note)
+
+
+def _has_uv(mesh: Any) -> bool:
+    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    return uv is not None and len(uv) == len(mesh.vertices)
+
+
+def _can_carry(source: Any, vertices: np.ndarray, faces: np.ndarray, result: SaveResult) -> bool:
+    """Whether the output has the source's layout, so its UVs/material still fit."""
+    if source is None:
+        return False
+    source_faces = np.asarray(source.faces)
+    if len(source.vertices) == len(vertices) and source_faces.shape == faces.shape and np.array_equal(source_faces, faces):
+        return True
+    if _has_uv(source) or getattr(source.visual, "material", None) is not None:
+        result.notes.append(
+            f"output layout ({len(vertices)} vertices, {len(faces)} faces) differs from the input's "
+            f"({len(source.vertices)} vertices, {len(source_faces)} faces): UVs and materials are not carried over; "
+            "pass positions for the input's vertices (PreparedMesh.source_positions) to keep them"
+        )
+    return False
+
+
+def _output_trimesh(vertices: np.ndarray, faces: np.ndarray, source: Any):
+    import trimesh
+
+    visual = None
+    if source is not None and source.visual is not None:
+        visual = source.visual.copy()
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False, validate=False)
+    # Normals for the new shape, never the input's (the shape changed).
+    mesh.vertex_normals = vertex_normals(vertices, faces)
+    return mesh
+
+
+def _save_obj_with_trimesh(path: Path, mesh: Any, carry: bool, overwrite: bool, result: SaveResult) -> None:
+    from trimesh.exchange.obj import export_obj
+
+    if carry and _has_uv(mesh):
+        mtl_name = f"{path.stem}.mtl"
+        text, files = export_obj(
+            mesh, include_normals=True, include_texture=True, return_texture=True, mtl_name=mtl_name
+        )
+        for name, data in files.items():
+            target = path.parent / name
+            if target.exists() and not overwrite:
+                result.notes.append(f"kept the existing {name} beside the output (not overwritten)")
+                continue
+            atomic_write(target, data)
+            result.extra_files.append(target)
+        atomic_write(path, text)
+        result.carried += ["UVs", f"material (mtllib {mtl_name})", "normals recomputed"]
+    else:
+        atomic_write(path, export_obj(mesh, include_normals=True, include_texture=False))
+        result.carried.append("normals recomputed")
+
+
+# --------------------------------------------------------------------------------------------
+# OBJ → OBJ: rewrite the input's own text
+
+
+def _rewrite_obj(input_path: Path, source: Any, vertices: np.ndarray, result: SaveResult) -> str | None:
+    """The input OBJ's text with new ``v`` positions and recomputed ``vn``; None if it can't map.
+
+    Input ``v`` lines are matched to the source's vertices by their exact parsed coordinates
+    (trimesh splits vertices at UV seams, so several source vertices may share one ``v`` line).
+    """
+    try:
+        lines = input_path.read_text(encoding="utf-8", errors="surrogateescape").splitlines()
+    except OSError as error:
+        result.notes.append(f"could not re-read the input {input_path.name} ({error}); wrote a plain OBJ")
+        return None
+
+    file_positions: list[tuple[float, float, float]] = []
+    vertex_line: list[int] = []
+    for number, line in enumerate(lines):
+        if line.startswith("v ") or line.startswith("v\t"):
+            parts = line.split()
+            try:
+                file_positions.append((float(parts[1]), float(parts[2]), float(parts[3])))
+            except (IndexError, ValueError):
+                result.notes.append(f"{input_path.name}:{number + 1}: unreadable vertex line; wrote a plain OBJ")
+                return None
+            vertex_line.append(number)
+    if not file_positions:
+        return None
+
+    # source vertex -> file vertex (first with the same coordinates)
+    first_index: dict[tuple[float, float, float], int] = {}
+    for index, position in enumerate(file_positions):
+        first_index.setdefault(position, index)
+    source_vertices = np.asarray(source.vertices, dtype=np.float64)
+    source_to_file = np.empty(len(source_vertices), dtype=np.int64)
+    for index, position in enumerate(map(tuple, source_vertices.tolist())):
+        found = first_index.get(position)
+        if found is None:
+            result.notes.append(
+                f"{input_path.name}: vertices do not match the loaded mesh; wrote a plain OBJ "
+                "(UVs kept, material groups merged)"
+            )
+            return None
+        source_to_file[index] = found
+
+    # New position of each file vertex: the mean over the source vertices that came from it
+    # (they are equal after preparation merged seam vertices). Unused lines keep their place.
+    key_of_file = np.array([first_index[p] for p in file_positions], dtype=np.int64)
+    total = np.zeros((len(file_positions), 3))
+    count = np.zeros(len(file_positions))
+    np.add.at(total, source_to_file, vertices)
+    np.add.at(count, source_to_file, 1)
+    new_positions = np.asarray(file_positions, dtype=np.float64)
+    used = count[key_of_file] > 0
+    new_positions[used] = total[key_of_file[used]] / count[key_of_file[used], None]
+    spread = np.zeros(len(file_positions))
+    np.maximum.at(spread, source_to_file, np.linalg.norm(vertices - (total / np.maximum(count, 1)[:, None])[source_to_file], axis=1))
+    if spread.max() > 1e-9 * max(1.0, float(np.abs(vertices).max())):
+        result.notes.append("input vertices that share a position were moved apart; wrote their mean position")
+
+    # Normals of the new shape on the file's vertex layout.
+    file_faces = key_of_file[source_to_file[np.asarray(source.faces, dtype=np.int64)]]
+    normals = vertex_normals(new_positions, file_faces)
+
+    out: list[str] = [f"# written by allorules from {input_path.name}: positions scaled, normals recomputed"]
+    vertex_count = 0
+    normals_written = False
+    had_uv = False
+    for line in lines:
+        stripped = line.lstrip()
+        if stripped.startswith("v ") or stripped.startswith("v\t"):
+            parts = stripped.split()
+            x, y, z = new_positions[vertex_count]
+            vertex_count += 1
+            out.append(" ".join(["v", _number(x), _number(y), _number(z), *parts[4:]]))
+        elif stripped.startswith("vn ") or stripped.startswith("vn\t"):
+            continue  # replaced by the recomputed normals
+        elif stripped.startswith("f ") or stripped.startswith("f\t"):
+            if not normals_written:
+                out.extend(f"vn {_number(a)} {_number(b)} {_number(c)}" for a, b, c in normals)
+                normals_written = True
+            out.append(_face_with_normals(stripped, vertex_count))
+        else:
+            if stripped.startswith("vt"):
+                had_uv = True
+            out.append(line)
+    result.carried.append("normals recomputed")
+    if had_uv:
+        result.carried.append("UVs")
+    result.carried.append("OBJ groups, smoothing and usemtl kept")
+    return "\n".join(out) + "\n"
+
+
+def _number(value: float) -> str:
+    return f"{value:.9g}"
+
+
+def _face_with_normals(line: str, vertices_so_far: int) -> str:
+    """``f a/b/c …`` with each corner's normal index set to its vertex index (absolute)."""
+    parts = line.split()
+    corners = []
+    for token in parts[1:]:
+        pieces = token.split("/")
+        vertex = int(pieces[0])
+        if vertex < 0:  # relative index
+            vertex = vertices_so_far + 1 + vertex
+        texture = pieces[1] if len(pieces) > 1 else ""
+        corners.append(f"{vertex}/{texture}/{vertex}")
+    return "f " + " ".join(corners)
+
+
+_MTLLIB = re.compile(r"^\s*mtllib\s+(.+?)\s*$")
+_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|refl|norm)\s+(.+?)\s*$", re.IGNORECASE)
+
+
+def _bring_materials(input_path: Path, output_path: Path, text: str, overwrite: bool, result: SaveResult) -> None:
+    """Make the output's ``mtllib`` resolve as the input's did; say so when it cannot."""
+    libraries = [match.group(1) for match in map(_MTLLIB.match, text.splitlines()) if match]
+    input_folder, output_folder = input_path.parent.resolve(), output_path.parent.resolve()
+    for library in libraries:
+        source_library = input_folder / library
+        target_library = output_folder / library
+        if not source_library.is_file():
+            result.notes.append(
+                f"the input refers to material library {library!r}, which is missing beside it "
+                f"({input_folder}); the output refers to it too, put it next to the output to see the materials"
+            )
+            continue
+        result.carried.append(f"materials (mtllib {library})")
+        if input_folder == output_folder:
+            continue
+        if not target_library.exists():
+            _copy_atomic(source_library, target_library)
+            result.extra_files.append(target_library)
+        # Textures are referenced; copy only the ones the output's folder would miss.
+        for line in source_library.read_text(encoding="utf-8", errors="replace").splitlines():
+            match = _MAP.match(line)
+            if not match:
+                continue
+            texture = match.group(2).split()[-1]
+            if Path(texture).is_absolute() or (output_folder / texture).exists():
+                continue
+            original = (input_folder / texture)
+            if original.is_file():
+                _copy_atomic(original, output_folder / texture)
+                result.extra_files.append(output_folder / texture)
+            else:
+                result.notes.append(f"texture {texture!r} named in {library} is missing beside the input")
+
+
+def _copy_atomic(source: Path, target: Path) -> None:
+    with atomic_path(target) as temporary:
+        shutil.copyfile(source, temporary)
