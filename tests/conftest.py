@@ -1,0 +1,25 @@
+"""Shared fixtures: an isolated basis cache, the real meshes folder (skipped where absent)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+
+@pytest.fixture(autouse=True, scope="session")
+def isolated_basis_cache(tmp_path_factory):
+    """Tests never read or write the user's basis cache; they share one cache per session."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("ALLORULES_CACHE_DIR", str(tmp_path_factory.mktemp("basis-cache")))
+    yield
+    patch.undo()
+
+
+@pytest.fixture(scope="session")
+def shared_meshes() -> Path:
+    """The folder of real meshes beside the checkout; tests using it skip where it is absent."""
+    if not SHARED_MESHES.is_dir():
+        pytest.skip("../shared/meshes is not present")
+    return SHARED_MESHES
