@@ -19,6 +19,7 @@ from ..errors import AllorulesError
 # Modules of this package that define sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = [
     "spectrum",
+    "experiment",
 ]
 
 log = logging.getLogger("allorules")
