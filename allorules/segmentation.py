@@ -1,0 +1,65 @@
+"""Segmentation of a body into anatomical regions (paper §3.2, METHOD §7): the public entry point.
+
+Three ways to get the six regions the scaling rules talk about
+(head, neck, chest = upper torso, abdomen = lower torso, forelimbs, hindlimbs):
+
+* automatically, for a standing quadruped: :func:`label_quadruped` (module :mod:`allorules.labeller`);
+* the paper's user-assisted path: :func:`spectral_patches` over-segments the mesh into numbered
+  connected patches (module :mod:`allorules.patches`), a person writes a merge file naming the
+  patches of each region, :func:`apply_merge_file` turns patches into regions;
+* from a file: per-vertex labels JSON or a Princeton ``.seg`` (module :mod:`allorules.labels_io`).
+
+Where the parts that are not one of the six go (the automatic labeller and :func:`map_regions`):
+a **tail** belongs to the **abdomen** (it grows from the rump, which is lower torso); ears, horns,
+antlers, manes and trunks belong to the **head**.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .body import UNLABELLED, Body
+from .errors import SegmentationError
+from .labeller import REGIONS as QUADRUPED_REGIONS
+from .labeller import label_quadruped
+from .labels_io import (
+    MergeFileError,
+    apply_merge_file,
+    face_labels_from_vertices,
+    read_labels,
+    read_merge_file,
+    read_seg,
+    vertex_labels_from_faces,
+    write_labels,
+    write_seg,
+)
+from .patches import DEFAULT_PATCH_COUNT, spectral_patches
+
+# Where regions outside the six go: the neighbour that carries them.
+NEIGHBOUR_REGION = {"tail": "abdomen", "ears": "head", "ear": "head", "horns": "head", "horn": "head",
+                    "trunk": "head", "antlers": "head", "mane": "neck"}
+
+__all__ = [
+    "QUADRUPED_REGIONS", "NEIGHBOUR_REGION", "DEFAULT_PATCH_COUNT", "MergeFileError",
+    "label_quadruped", "spectral_patches", "apply_merge_file", "read_merge_file",
+    "read_labels", "write_labels", "read_seg", "write_seg",
+    "face_labels_from_vertices", "vertex_labels_from_faces", "map_regions",
+]
+
+
+def map_regions(body: Body, regions: tuple[str, ...] = QUADRUPED_REGIONS) -> Body:
+    """The body relabelled onto ``regions``: extra regions (tail, ears, …) go to their neighbour.
+
+    Regions not in ``regions`` and not in :data:`NEIGHBOUR_REGION` raise a SegmentationError.
+    """
+    if body.labels is None:
+        raise SegmentationError("the body has no labels; segment it first")
+    lookup = np.full(len(body.region_names) + 1, UNLABELLED, dtype=np.int64)  # last slot: unlabelled
+    for index, name in enumerate(body.region_names):
+        target = name if name in regions else NEIGHBOUR_REGION.get(name)
+        if target not in regions:
+            raise SegmentationError(
+                f"region {name!r} is not one of {', '.join(regions)} and has no known neighbour to join"
+            )
+        lookup[index] = regions.index(target)
+    labels = lookup[np.where(body.labels >= 0, body.labels, len(body.region_names))]
+    return Body(body.vertices, body.faces, labels, tuple(regions), body.frame)
