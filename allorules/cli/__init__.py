@@ -20,6 +20,8 @@ from ..errors import AllorulesError
 COMMAND_MODULES = [
     "spectrum",
     "experiment",
+    "rulesets",
+    "plugins",
 ]
 
 log = logging.getLogger("allorules")

@@ -1,0 +1,349 @@
+"""Plugin discovery and the registry of everything plugins provide.
+
+Plugins come from three places, in this order: the built-ins (:mod:`allorules.builtin`,
+name ``builtin``), installed packages declaring an entry point in the group ``allorules``,
+and explicit paths (``--plugin PATH`` on the command line or ``plugins:`` in a ruleset), each
+a ``.py`` file or a package folder. Nothing is ever loaded from the current folder unless
+named. A plugin that fails to import, or whose hook raises or returns something malformed,
+is recorded in :attr:`PluginRegistry.failures`, reported by name on stderr, and the rest keep
+working.
+
+:class:`PluginRegistry` is a :class:`pluggy.PluginManager` that also gathers what the hooks
+return: :meth:`~PluginRegistry.measures`, :meth:`~PluginRegistry.segmenters`,
+:meth:`~PluginRegistry.constraints`, :meth:`~PluginRegistry.ruleset_paths` and
+:meth:`~PluginRegistry.describe`.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.metadata
+import importlib.util
+import logging
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import pluggy
+
+from . import hookspecs
+from .errors import PluginError
+from .hookspecs import hookimpl  # noqa: F401  (re-exported for plugin authors)
+from .specs import (  # noqa: F401  (re-exported for plugin authors)
+    ConstraintContext,
+    ConstraintSpec,
+    MeasureSpec,
+    ParameterSpec,
+    SegmenterSpec,
+)
+
+log = logging.getLogger("allorules")
+
+ENTRY_POINT_GROUP = "allorules"
+ORIGIN_BUILTIN = "built-in"
+ORIGIN_ENTRY_POINT = "entry point"
+ORIGIN_PATH = "path"
+
+# hook name -> (kind shown to users, spec class every item must be)
+PROVIDED_KINDS: dict[str, tuple[str, type]] = {
+    "allorules_measures": ("measure", MeasureSpec),
+    "allorules_segmenters": ("segmenter", SegmenterSpec),
+    "allorules_constraints": ("constraint", ConstraintSpec),
+    "allorules_ruleset_paths": ("ruleset path", Path),
+}
+
+
+@dataclass
+class PluginFailure:
+    """A plugin (or one of its hooks) that did not work, in one line for the user."""
+
+    plugin: str
+    origin: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"plugin {self.plugin!r} ({self.origin}): {self.message}"
+
+
+@dataclass
+class PluginInfo:
+    """What ``allorules plugins`` shows for one plugin."""
+
+    name: str
+    origin: str            # "built-in", "entry point", "path"
+    location: str          # module file, or entry point "name = module"
+    provides: dict[str, list[str]] = field(default_factory=dict)   # kind -> names
+    failed: list[str] = field(default_factory=list)                # failure messages
+
+
+class PluginRegistry(pluggy.PluginManager):
+    """A pluggy plugin manager that knows where each plugin came from and what it provides."""
+
+    def __init__(self) -> None:
+        super().__init__(hookspecs.PROJECT_NAME)
+        self.add_hookspecs(hookspecs)
+        self.origins: dict[str, tuple[str, str]] = {}   # plugin name -> (origin, location)
+        self.failures: list[PluginFailure] = []
+        self._reported: set[tuple[str, str]] = set()
+        self._gathered: dict[str, dict[str, Any]] | None = None
+
+    # -- loading -----------------------------------------------------------------------------
+    def add_plugin(self, module: Any, name: str, origin: str, location: str = "") -> bool:
+        """Register ``module`` under ``name``; record a failure instead of raising."""
+        if self.has_plugin(name) or self.is_registered(module):
+            return False
+        try:
+            self.register(module, name=name)
+        except Exception as error:  # pluggy validation: wrong hook signatures, unknown hooks
+            self._fail(name, origin, f"could not be registered: {_one_line(error)}")
+            return False
+        self.origins[name] = (origin, location or str(getattr(module, "__file__", "") or ""))
+        self._gathered = None
+        return True
+
+    def load_builtins(self) -> None:
+        from . import builtin
+
+        self.add_plugin(builtin, "builtin", ORIGIN_BUILTIN, builtin.__file__)
+
+    def load_entry_points(self) -> None:
+        """Load every installed plugin declared in the entry-point group ``allorules``."""
+        try:
+            entry_points = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        except Exception as error:  # broken metadata of some installed distribution
+            self._fail("<entry points>", ORIGIN_ENTRY_POINT, f"could not be listed: {_one_line(error)}")
+            return
+        seen: set[str] = set()
+        for entry_point in sorted(entry_points, key=lambda item: item.name):
+            if entry_point.name in seen:   # the same distribution visible twice on sys.path
+                continue
+            seen.add(entry_point.name)
+            location = f"{entry_point.name} = {entry_point.value}"
+            if self.has_plugin(entry_point.name):
+                continue
+            try:
+                module = entry_point.load()
+            except Exception as error:
+                self._fail(entry_point.name, ORIGIN_ENTRY_POINT, f"failed to import: {_one_line(error)}")
+                continue
+            self.add_plugin(module, entry_point.name, ORIGIN_ENTRY_POINT, location)
+
+    def load_path(self, path: str | Path) -> str | None:
+        """Load a plugin from a ``.py`` file or a package folder; return its name (None on failure).
+
+        Loading the same file twice (say from ``--plugin`` and from a ruleset, or a path to
+        a module that is also installed) registers it once.
+        """
+        path = Path(path).expanduser()
+        name = path.stem if path.is_file() else path.name
+        if not path.exists():
+            self._fail(name, ORIGIN_PATH, f"{path} does not exist; give the path of a .py file or a package folder")
+            return None
+        if path.is_dir():
+            init = path / "__init__.py"
+            if not init.is_file():
+                self._fail(name, ORIGIN_PATH, f"{path} is a folder without __init__.py; give a .py file or a package folder")
+                return None
+            module_file = init.resolve()
+        elif path.suffix != ".py":
+            self._fail(name, ORIGIN_PATH, f"{path} is not a .py file; give a .py file or a package folder")
+            return None
+        else:
+            module_file = path.resolve()
+        for plugin_name, module in self.list_name_plugin():
+            registered_file = getattr(module, "__file__", None)
+            if registered_file and Path(registered_file).resolve() == module_file:
+                return plugin_name
+        if self.has_plugin(name):
+            self._fail(name, ORIGIN_PATH, f"{path}: another plugin is already registered as {name!r}; rename the file")
+            return None
+        module_name = f"allorules_plugin_{name.replace('-', '_')}"
+        try:
+            spec = importlib.util.spec_from_file_location(
+                module_name, module_file,
+                submodule_search_locations=[str(module_file.parent)] if path.is_dir() else None,
+            )
+            if spec is None or spec.loader is None:
+                raise ImportError(f"cannot import {module_file}")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[module_name] = module
+            spec.loader.exec_module(module)
+        except Exception as error:
+            sys.modules.pop(module_name, None)
+            self._fail(name, ORIGIN_PATH, f"failed to import {path}: {_one_line(error)}")
+            return None
+        return name if self.add_plugin(module, name, ORIGIN_PATH, str(module_file)) else None
+
+    def load_paths(self, paths: Iterable[str | Path]) -> None:
+        for path in paths:
+            self.load_path(path)
+
+    # -- what plugins provide -----------------------------------------------------------------
+    def _gather(self) -> dict[str, dict[str, Any]]:
+        """Call every hook of every plugin separately; a failing one is recorded and skipped."""
+        if self._gathered is not None:
+            return self._gathered
+        gathered: dict[str, dict[str, Any]] = {hook: {} for hook in PROVIDED_KINDS}
+        providers: dict[str, dict[str, str]] = {hook: {} for hook in PROVIDED_KINDS}
+        self._provided: dict[str, dict[str, list[str]]] = {}
+        order = [name for name, _ in self.list_name_plugin()]
+        for hook_name, (kind, spec_class) in PROVIDED_KINDS.items():
+            implementations = {impl.plugin_name: impl for impl in getattr(self.hook, hook_name).get_hookimpls()}
+            for plugin_name in order:   # registration order: built-ins first, so they win clashes
+                implementation = implementations.get(plugin_name)
+                if implementation is None:
+                    continue
+                origin = self.origins.get(plugin_name, ("?", ""))[0]
+                try:
+                    items = implementation.function()
+                except Exception as error:
+                    self._fail(plugin_name, origin, f"hook {hook_name} raised {type(error).__name__}: {_one_line(error)}")
+                    continue
+                if items is None:
+                    items = []
+                if not isinstance(items, (list, tuple)):
+                    self._fail(plugin_name, origin, f"hook {hook_name} returned {type(items).__name__}; it must return a list of {spec_class.__name__}")
+                    continue
+                for item in items:
+                    if spec_class is Path and isinstance(item, str):
+                        item = Path(item)
+                    if not isinstance(item, spec_class):
+                        self._fail(plugin_name, origin, f"hook {hook_name} returned a {type(item).__name__}; expected {spec_class.__name__}")
+                        continue
+                    if spec_class is Path:
+                        gathered[hook_name][str(item)] = item
+                        self._provided.setdefault(plugin_name, {}).setdefault(kind, []).append(str(item))
+                        continue
+                    problem = _check_spec(item)
+                    if problem:
+                        self._fail(plugin_name, origin, f"{kind} {getattr(item, 'name', '?')!r}: {problem}")
+                        continue
+                    if item.name in gathered[hook_name]:
+                        self._fail(plugin_name, origin, f"{kind} {item.name!r} is already provided by plugin "
+                                   f"{providers[hook_name][item.name]!r}; this one is ignored (rename it)")
+                        continue
+                    gathered[hook_name][item.name] = item
+                    providers[hook_name][item.name] = plugin_name
+                    self._provided.setdefault(plugin_name, {}).setdefault(kind, []).append(item.name)
+        self._gathered = gathered
+        self._providers = providers
+        return gathered
+
+    def measures(self) -> dict[str, MeasureSpec]:
+        return dict(self._gather()["allorules_measures"])
+
+    def segmenters(self) -> dict[str, SegmenterSpec]:
+        return dict(self._gather()["allorules_segmenters"])
+
+    def constraints(self) -> dict[str, ConstraintSpec]:
+        return dict(self._gather()["allorules_constraints"])
+
+    def ruleset_paths(self) -> list[Path]:
+        return list(self._gather()["allorules_ruleset_paths"].values())
+
+    def provider(self, kind: str, name: str) -> str | None:
+        """Name of the plugin providing the ``kind`` (measure/segmenter/constraint) ``name``."""
+        self._gather()
+        hook = {"measure": "allorules_measures", "segmenter": "allorules_segmenters",
+                "constraint": "allorules_constraints"}[kind]
+        return self._providers[hook].get(name)
+
+    def measure(self, name: str) -> MeasureSpec:
+        return _lookup(self.measures(), name, "measure")
+
+    def segmenter(self, name: str) -> SegmenterSpec:
+        return _lookup(self.segmenters(), name, "segmenter")
+
+    def constraint(self, name: str) -> ConstraintSpec:
+        return _lookup(self.constraints(), name, "constraint")
+
+    def describe(self) -> list[PluginInfo]:
+        """Every plugin (and every plugin that failed to load): origin, location, what it provides."""
+        self._gather()
+        infos: dict[str, PluginInfo] = {}
+        for name, _module in self.list_name_plugin():
+            origin, location = self.origins.get(name, ("?", ""))
+            infos[name] = PluginInfo(name, origin, location, dict(self._provided.get(name, {})))
+        for failure in self.failures:
+            info = infos.setdefault(failure.plugin, PluginInfo(failure.plugin, failure.origin, ""))
+            info.failed.append(failure.message)
+        return list(infos.values())
+
+    # -- failures ----------------------------------------------------------------------------
+    def _fail(self, plugin: str, origin: str, message: str) -> None:
+        failure = PluginFailure(plugin, origin, message)
+        if (plugin, message) in self._reported:
+            return
+        self._reported.add((plugin, message))
+        self.failures.append(failure)
+        log.warning("warning: %s", failure)
+
+
+def _check_spec(item: Any) -> str | None:
+    """What is malformed in a spec a plugin returned (None when it is usable)."""
+    name = getattr(item, "name", None)
+    if not isinstance(name, str) or not name.strip() or name != name.strip():
+        return "its name must be non-empty text without surrounding spaces"
+    if isinstance(item, MeasureSpec):
+        if not callable(item.compute):
+            return "compute is not callable"
+        if isinstance(item.isometric_exponent, bool) or not isinstance(item.isometric_exponent, (int, float)):
+            return "isometric_exponent must be a number"
+    if isinstance(item, SegmenterSpec) and not callable(item.segment):
+        return "segment is not callable"
+    if isinstance(item, ConstraintSpec):
+        if not callable(item.residuals):
+            return "residuals is not callable"
+        if not hasattr(item.parameters, "items"):
+            return "parameters must be a mapping of name to default or ParameterSpec"
+    return None
+
+
+def _lookup(table: dict[str, Any], name: str, kind: str) -> Any:
+    if name in table:
+        return table[name]
+    from difflib import get_close_matches
+
+    close = get_close_matches(name, list(table), n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    raise PluginError(f"unknown {kind} {name!r}; {hint}known: {', '.join(sorted(table)) or 'none'} "
+                      f"(a plugin may provide it: see 'allorules plugins')")
+
+
+def _one_line(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__
+
+
+def add_plugin_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--plugin PATH`` (repeatable) to a command's parser."""
+    parser.add_argument(
+        "--plugin", dest="plugins", action="append", default=[], metavar="PATH", type=Path,
+        help="load a plugin from a .py file or a package folder (repeatable); "
+             "installed plugins (entry-point group 'allorules') are always loaded",
+    )
+
+
+def registry_for(arguments_or_paths: argparse.Namespace | Iterable[str | Path] | None = None, *,
+                 entry_points: bool = True) -> PluginRegistry:
+    """A registry with the built-ins, the installed plugins and the given plugin paths.
+
+    ``arguments_or_paths`` is a parsed command line (its ``plugins`` from
+    :func:`add_plugin_argument`) or an iterable of paths.
+    """
+    if isinstance(arguments_or_paths, argparse.Namespace):
+        paths = list(getattr(arguments_or_paths, "plugins", None) or [])
+    else:
+        paths = list(arguments_or_paths or [])
+    registry = PluginRegistry()
+    registry.load_builtins()
+    if entry_points:
+        registry.load_entry_points()
+    registry.load_paths(paths)
+    return registry
+
+
+# The brief's name for the same thing: the registry *is* a pluggy.PluginManager.
+plugin_manager_for = registry_for
+Registry = PluginRegistry
