@@ -1,0 +1,438 @@
+"""Cross-sections and skeletons of a mesh from the isocontours of a scalar field (METHOD §3).
+
+A *loop* is a closed polyline where a piecewise-linear per-vertex field crosses a level
+(marching triangles). Its length is a girth, ‖½ Σ p_k × p_{k+1}‖ its cross-sectional area and
+its centroid a skeleton node. Sweeping the level gives a stack of loops; loops at neighbouring
+levels that touch the same connected band of surface between the two levels are joined, which
+makes the *skeleton* graph, whose diameter (longest shortest path) is a length.
+
+Everything here is a plain function of vertex, face and field arrays; :mod:`allorules.measures`
+applies them to the regions of a :class:`~allorules.body.Body`. The usual field is the Fiedler
+vector h₁ of the harmonic basis (:func:`fiedler_vector`), which runs along elongated shapes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field as dataclass_field
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg
+
+from .eigensolver import smallest_eigenpairs
+from .laplacian import cotangent_laplacian, lumped_mass
+
+# Meshes up to this many vertices use the reference (dense) eigensolver for h₁.
+DENSE_FIEDLER_LIMIT = 200
+
+# ---------------------------------------------------------------------------------------------
+# Loops
+
+
+@dataclass
+class Loop:
+    """A polyline on the surface, closed unless ``closed`` is False.
+
+    ``points[k]`` lies on an edge of the mesh; the segment from ``points[k]`` to
+    ``points[k+1]`` (and, when closed, from the last back to the first) crosses ``faces[k]``.
+    """
+
+    points: np.ndarray            # (k, 3)
+    faces: np.ndarray             # (k,) for a closed loop, (k-1,) for an open chain
+    level: float = float("nan")   # the field value it is an isocontour of (nan: a mesh boundary)
+    closed: bool = True
+
+    def _segments(self) -> tuple[np.ndarray, np.ndarray]:
+        following = np.roll(self.points, -1, axis=0) if self.closed else self.points[1:]
+        start = self.points if self.closed else self.points[:-1]
+        return start, following
+
+    @property
+    def girth(self) -> float:
+        """Length of the polyline (the closing segment included when closed)."""
+        start, following = self._segments()
+        return float(np.linalg.norm(following - start, axis=1).sum())
+
+    @property
+    def vector_area(self) -> np.ndarray:
+        """½ Σ p_k × p_{k+1}: normal times enclosed area; independent of the origin when closed."""
+        start, following = self._segments()
+        origin = self.points.mean(axis=0)   # exact for a closed loop, steadier in floating point
+        return 0.5 * np.cross(start - origin, following - origin).sum(axis=0)
+
+    @property
+    def area(self) -> float:
+        """Cross-sectional area ‖½ Σ p_k × p_{k+1}‖ (METHOD §3)."""
+        return float(np.linalg.norm(self.vector_area))
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """Length-weighted centroid of the polyline (does not depend on how densely it is sampled)."""
+        start, following = self._segments()
+        lengths = np.linalg.norm(following - start, axis=1)
+        if lengths.sum() <= 0:
+            return self.points.mean(axis=0)
+        return ((start + following) * 0.5 * lengths[:, None]).sum(axis=0) / lengths.sum()
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal of the loop's plane of best fit (direction of the vector area)."""
+        vector = self.vector_area
+        norm = np.linalg.norm(vector)
+        return vector / norm if norm > 0 else vector
+
+
+def _chain(neighbours: np.ndarray) -> list[tuple[np.ndarray, bool]]:
+    """Order the nodes of a graph of maximum degree two into chains.
+
+    ``neighbours[i]`` holds node i's (at most two) neighbours, -1 for none. Returns one
+    ``(node order, closed)`` per connected component.
+    """
+    count = len(neighbours)
+    visited = np.zeros(count, dtype=bool)
+    degree = (neighbours >= 0).sum(axis=1)
+    table = neighbours.tolist()
+    chains = []
+    # Open chains first, from an end (degree ≤ 1); then what is left is closed cycles.
+    starts = list(np.flatnonzero(degree <= 1)) + list(range(count))
+    for start in starts:
+        if visited[start]:
+            continue
+        order = [start]
+        visited[start] = True
+        previous, current = -1, start
+        closed = False
+        while True:
+            a, b = table[current]
+            step = a if a != previous and a >= 0 else (b if b != previous and b >= 0 else -1)
+            if step == a and a == b and a >= 0:   # two-node cycle walked both ways
+                step = -1
+            if step < 0:
+                break
+            if visited[step]:
+                closed = step == start and len(order) > 2
+                break
+            order.append(step)
+            visited[step] = True
+            previous, current = current, step
+        chains.append((np.asarray(order, dtype=np.int64), closed))
+    return chains
+
+
+def isocontour_loops(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    field: np.ndarray,
+    level: float,
+    *,
+    keep_open: bool = False,
+) -> list[Loop]:
+    """The polylines where the piecewise-linear ``field`` equals ``level`` (marching triangles).
+
+    A vertex counts as above the level when ``field ≥ level`` (so a level through a vertex is
+    handled consistently). Each face with vertices on both sides contributes one segment between
+    the crossing points on its two crossed edges; segments sharing an edge are chained. Chains
+    that end at the mesh boundary (or at a non-manifold edge) are open: they are dropped unless
+    ``keep_open``. Returns loops longest first.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    field = np.asarray(field, dtype=np.float64)
+    above = field[faces] >= level                       # (f, 3)
+    count_above = above.sum(axis=1)
+    crossing = np.flatnonzero((count_above == 1) | (count_above == 2))
+    if len(crossing) == 0:
+        return []
+    corners = faces[crossing]
+    side = above[crossing]
+    # Edge k of a face joins corner k and corner k+1; exactly two of the three are crossed.
+    edge_a = corners
+    edge_b = np.roll(corners, -1, axis=1)
+    crossed = side != np.roll(side, -1, axis=1)          # (c, 3), two True per row
+    rows, edge_slot = np.nonzero(crossed)
+    a = edge_a[rows, edge_slot]
+    b = edge_b[rows, edge_slot]
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    keys = low * len(vertices) + high
+    unique_keys, node_of = np.unique(keys, return_inverse=True)
+    node_of = node_of.reshape(-1, 2)                     # the two crossing nodes of each face
+    node_low = unique_keys // len(vertices)
+    node_high = unique_keys % len(vertices)
+    # Crossing point on edge (p, q): p + t (q − p), t = (level − f_p) / (f_q − f_p).
+    f_low, f_high = field[node_low], field[node_high]
+    t = np.clip((level - f_low) / (f_high - f_low), 0.0, 1.0)
+    points = vertices[node_low] + t[:, None] * (vertices[node_high] - vertices[node_low])
+
+    # Each node (a mesh edge) touches at most two crossing faces on a manifold mesh.
+    node_count = len(unique_keys)
+    incidence_node = node_of.ravel()
+    incidence_face = np.repeat(np.arange(len(crossing)), 2)
+    uses = np.bincount(incidence_node, minlength=node_count)
+    usable = uses[incidence_node] <= 2                   # a non-manifold edge breaks the chain
+    segment_ok = usable.reshape(-1, 2).all(axis=1)
+    neighbours = np.full((node_count, 2), -1, dtype=np.int64)
+    segment_face = {}
+    fill = np.zeros(node_count, dtype=np.int64)
+    for (p, q), local_face in zip(node_of[segment_ok].tolist(), np.flatnonzero(segment_ok).tolist()):
+        neighbours[p, fill[p]] = q
+        fill[p] += 1
+        neighbours[q, fill[q]] = p
+        fill[q] += 1
+        segment_face[(min(p, q), max(p, q))] = crossing[local_face]
+    loops = []
+    for order, closed in _chain(neighbours):
+        if len(order) < 2 or (not closed and not keep_open):
+            continue
+        pairs = zip(order.tolist(), np.roll(order, -1).tolist() if closed else order[1:].tolist())
+        crossed_faces = np.asarray([segment_face[(min(p, q), max(p, q))] for p, q in pairs], dtype=np.int64)
+        loops.append(Loop(points[order], crossed_faces, float(level), closed))
+    loops.sort(key=lambda loop: -loop.girth)
+    return loops
+
+
+def boundary_loops(vertices: np.ndarray, faces: np.ndarray) -> list[Loop]:
+    """The open boundary of a mesh as ordered closed loops (``faces`` = the face of each edge)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    face_of = np.tile(np.arange(len(faces)), 3)
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    on_boundary = counts[inverse.ravel()] == 1
+    edges, edge_faces = directed[on_boundary], face_of[on_boundary]
+    if len(edges) == 0:
+        return []
+    nodes, local = np.unique(edges, return_inverse=True)
+    local = local.reshape(-1, 2)
+    neighbours = np.full((len(nodes), 2), -1, dtype=np.int64)
+    fill = np.zeros(len(nodes), dtype=np.int64)
+    face_of_edge = {}
+    for (p, q), face in zip(local.tolist(), edge_faces.tolist()):
+        for x, y in ((p, q), (q, p)):
+            if fill[x] < 2:
+                neighbours[x, fill[x]] = y
+                fill[x] += 1
+        face_of_edge[(min(p, q), max(p, q))] = face
+    loops = []
+    for order, closed in _chain(neighbours):
+        if len(order) < 3:
+            continue
+        following = np.roll(order, -1) if closed else order[1:]
+        crossed = [face_of_edge.get((min(p, q), max(p, q)), -1) for p, q in zip(order.tolist(), following.tolist())]
+        loops.append(Loop(vertices[nodes[order]], np.asarray(crossed, dtype=np.int64), float("nan"), closed))
+    return loops
+
+
+# ---------------------------------------------------------------------------------------------
+# Fields and mesh parts
+
+
+def fiedler_vector(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """h₁, the first non-constant eigenvector of L h = λ D h (METHOD §2), on a connected mesh.
+
+    Its sign is fixed by the eigensolver (largest-magnitude entry positive); callers that need a
+    direction (junction → tip) orient it themselves.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    stiffness = cotangent_laplacian(vertices, faces)
+    mass = lumped_mass(vertices, faces)
+    if len(vertices) <= DENSE_FIEDLER_LIMIT:
+        _, vectors = smallest_eigenpairs(stiffness, mass, 2)
+        return vectors[:, 1]
+    # Two eigenpairs only: shift-invert Lanczos is far cheaper than the dense solver that
+    # smallest_eigenpairs uses below its dense limit. The shift sits just below 0 so that
+    # L − σD is non-singular (L has the constant vector in its kernel).
+    sigma = -1e-8 * float(stiffness.diagonal().max() / mass.max())
+    eigenvalues, vectors = scipy.sparse.linalg.eigsh(
+        stiffness.tocsc(), k=2, M=sparse.diags(mass).tocsc(), sigma=sigma, which="LM",
+        v0=np.sqrt(mass) + np.linspace(0.0, 1.0, len(mass)),   # deterministic start vector
+    )
+    vector = vectors[:, int(np.argmax(eigenvalues))]
+    vector = vector / np.sqrt(np.sum(mass * vector * vector))
+    # Same sign rule as the eigensolver: the entry of largest magnitude is positive.
+    return vector if vector[np.argmax(np.abs(vector))] > 0 else -vector
+
+
+def face_adjacency(faces: np.ndarray) -> sparse.csr_matrix:
+    """Boolean face × face matrix: faces sharing an edge."""
+    faces = np.asarray(faces, dtype=np.int64)
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, inverse = np.unique(edges, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    face_of = np.tile(np.arange(len(faces)), 3)
+    incidence = sparse.csr_matrix((np.ones(len(face_of)), (face_of, inverse)), shape=(len(faces), inverse.max() + 1))
+    adjacency = (incidence @ incidence.T).tocsr()
+    adjacency.setdiag(0)
+    adjacency.eliminate_zeros()
+    return adjacency
+
+
+def submesh(vertices: np.ndarray, faces: np.ndarray, face_selection: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The selected faces as a mesh of their own: ``(vertices, faces, original vertex index)``."""
+    chosen = np.asarray(faces)[face_selection]
+    used, local = np.unique(chosen, return_inverse=True)
+    return np.asarray(vertices)[used], local.reshape(-1, 3), used
+
+
+def connected_parts(faces: np.ndarray) -> list[np.ndarray]:
+    """Indices of the faces of each edge-connected part, largest part (by face count) first."""
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return []
+    count, labels = csgraph.connected_components(face_adjacency(faces), directed=False)
+    parts = [np.flatnonzero(labels == k) for k in range(count)]
+    parts.sort(key=len, reverse=True)
+    return parts
+
+
+def area_quantile_levels(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, count: int) -> np.ndarray:
+    """``count`` levels at the (k + ½)/count quantiles of the field, weighted by vertex area.
+
+    On a tube of constant radius, area is proportional to length, so the levels are about evenly
+    spaced along it whatever the shape of the field's profile (a Fiedler vector is flat near the
+    ends of a tube; evenly spaced *values* would crowd the middle).
+    """
+    mass = lumped_mass(vertices, faces)
+    order = np.argsort(field)
+    cumulative = np.cumsum(mass[order])
+    cumulative /= cumulative[-1]
+    targets = (np.arange(count) + 0.5) / count
+    levels = np.interp(targets, cumulative, field[order])
+    return np.unique(levels)
+
+
+# ---------------------------------------------------------------------------------------------
+# Skeleton
+
+
+@dataclass
+class Skeleton:
+    """Skeleton graph: nodes are points, edges weighted by the distance between them.
+
+    ``kinds[i]`` is ``"section"`` (centroid of ``loops[i]``, an isocontour), ``"boundary"``
+    (centroid of ``loops[i]``, an open boundary of the mesh) or ``"tip"`` (a vertex where the
+    field is extreme: the end of a limb, where isocontours shrink to a point).
+    """
+
+    points: np.ndarray                   # (N, 3)
+    graph: sparse.csr_matrix             # (N, N) symmetric, weights = distances
+    kinds: list[str]
+    loops: list[Loop | None]
+    levels: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def diameter(self) -> float:
+        return skeleton_diameter(self.graph)
+
+
+def skeleton_longest_path(graph: sparse.spmatrix) -> tuple[float, list[int]]:
+    """The longest of all shortest paths in a weighted undirected graph: (length, node path)."""
+    if graph.shape[0] == 0:
+        return 0.0, []
+    distances, predecessors = csgraph.shortest_path(graph, directed=False, return_predecessors=True)
+    distances[~np.isfinite(distances)] = -1.0
+    start, end = np.unravel_index(int(np.argmax(distances)), distances.shape)
+    length = float(max(distances[start, end], 0.0))
+    path = [int(end)]
+    while path[-1] != start and predecessors[start, path[-1]] >= 0:
+        path.append(int(predecessors[start, path[-1]]))
+    return length, path[::-1]
+
+
+def skeleton_diameter(graph: sparse.spmatrix) -> float:
+    """Diameter of a skeleton graph: its longest shortest path (METHOD §3)."""
+    return skeleton_longest_path(graph)[0]
+
+
+def skeleton(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    field: np.ndarray,
+    levels: np.ndarray | None = None,
+    *,
+    count: int = 40,
+) -> Skeleton:
+    """Skeleton of a mesh from the isocontours of ``field`` at ``levels``.
+
+    Levels default to ``count`` area quantiles of the field (:func:`area_quantile_levels`). The
+    surface between two consecutive levels (and below the first, above the last) is a set of
+    *bands*: connected components of the faces whose field range meets that interval. Nodes:
+    every closed isocontour loop (its centroid); every open boundary loop of the mesh (its
+    centroid); in each band below the first or above the last level that holds no boundary, the
+    vertex where the field is extreme (a tip). Two nodes are joined when they touch the same band.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    field = np.asarray(field, dtype=np.float64)
+    if levels is None:
+        levels = area_quantile_levels(vertices, faces, field, count)
+    levels = np.sort(np.asarray(levels, dtype=np.float64))
+    adjacency = face_adjacency(faces)
+    face_low = field[faces].min(axis=1)
+    face_high = field[faces].max(axis=1)
+
+    points: list[np.ndarray] = []
+    kinds: list[str] = []
+    node_loops: list[Loop | None] = []
+    node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
+    for level in levels:
+        for loop in isocontour_loops(vertices, faces, field, level):
+            points.append(loop.centroid)
+            kinds.append("section")
+            node_loops.append(loop)
+            node_faces.append(loop.faces)
+    for loop in boundary_loops(vertices, faces):
+        points.append(loop.centroid)
+        kinds.append("boundary")
+        node_loops.append(loop)
+        node_faces.append(loop.faces[loop.faces >= 0])
+
+    edges: set[tuple[int, int]] = set()
+    bounds = np.concatenate([[-np.inf], levels, [np.inf]])
+    face_nodes: dict[int, list[int]] = {}
+    for node, touched in enumerate(node_faces):
+        for face in touched.tolist():
+            face_nodes.setdefault(face, []).append(node)
+    for band in range(len(bounds) - 1):
+        lower, upper = bounds[band], bounds[band + 1]
+        # Faces whose field range [low, high] meets [lower, upper] (upper excluded: field ≥ level is above).
+        in_band = np.flatnonzero((face_high >= lower) & (face_low < upper))
+        if len(in_band) == 0:
+            continue
+        sub = adjacency[in_band][:, in_band]
+        component_count, component = csgraph.connected_components(sub, directed=False)
+        members: dict[int, set[int]] = {}
+        for local, face in enumerate(in_band.tolist()):
+            for node in face_nodes.get(face, ()):
+                members.setdefault(int(component[local]), set()).add(node)
+        end_band = band == 0 or band == len(bounds) - 2
+        if end_band:
+            # A tip: the extreme vertex of each end band part that is not closed off by a boundary.
+            for part in range(component_count):
+                part_nodes = members.get(part, set())
+                if any(kinds[node] == "boundary" for node in part_nodes):
+                    continue
+                part_vertices = np.unique(faces[in_band[component == part]])
+                values = field[part_vertices]
+                tip = part_vertices[np.argmin(values) if band == 0 else np.argmax(values)]
+                points.append(vertices[tip])
+                kinds.append("tip")
+                node_loops.append(None)
+                members.setdefault(part, set()).add(len(points) - 1)
+        for part_nodes in members.values():
+            ordered = sorted(part_nodes)
+            for i, p in enumerate(ordered):
+                for q in ordered[i + 1:]:
+                    edges.add((p, q))
+
+    point_array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if edges:
+        pairs = np.asarray(sorted(edges), dtype=np.int64)
+        weights = np.linalg.norm(point_array[pairs[:, 0]] - point_array[pairs[:, 1]], axis=1)
+        # A zero-length edge would vanish from a sparse matrix; keep it as a tiny positive weight.
+        weights = np.maximum(weights, 1e-300)
+        graph = sparse.coo_matrix((weights, (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+        graph = (graph + graph.T).tocsr()
+    else:
+        graph = sparse.csr_matrix((len(points), len(points)))
+    return Skeleton(point_array, graph, kinds, node_loops, levels)

@@ -1,0 +1,341 @@
+"""Measurements against shapes whose true answer is known: volumes, loops, skeletons, limbs, σ."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from allorules import measures
+from allorules.body import Body, Frame
+from allorules.errors import MeasurementError
+from allorules.measures import (
+    SectionChoice,
+    body_mass,
+    capped,
+    enclosed_volume,
+    limb_sections,
+    load_bearing_section,
+    peak_stress,
+    region_girth,
+    region_length,
+    region_mass,
+)
+from allorules.sections import (
+    boundary_loops,
+    fiedler_vector,
+    isocontour_loops,
+    skeleton,
+    skeleton_diameter,
+)
+
+# ---------------------------------------------------------------------------------------------
+# Shapes with known answers
+
+
+def revolution(z, r, around=48, bottom_pole=None, top_pole=None):
+    """Surface of revolution about z through rings (z[i], r[i]); poles (if given) close the ends.
+
+    Faces are oriented outward (positive enclosed volume once closed).
+    """
+    z = np.asarray(z, float)
+    r = np.asarray(r, float)
+    theta = np.linspace(0.0, 2.0 * np.pi, around, endpoint=False)
+    vertices = np.column_stack([np.outer(r, np.cos(theta)).ravel(), np.outer(r, np.sin(theta)).ravel(), np.repeat(z, around)])
+    i, j = np.meshgrid(np.arange(len(z) - 1), np.arange(around), indexing="ij")
+    a = (i * around + j).ravel()
+    b = (i * around + (j + 1) % around).ravel()
+    c, d = a + around, b + around
+    faces = [np.column_stack([a, b, d]), np.column_stack([a, d, c])]
+    extra = []
+    ring = np.arange(around)
+    if bottom_pole is not None:
+        extra.append([0.0, 0.0, bottom_pole])
+        faces.append(np.column_stack([np.full(around, len(vertices)), (ring + 1) % around, ring]))
+    if top_pole is not None:
+        pole = len(vertices) + len(extra)
+        extra.append([0.0, 0.0, top_pole])
+        last = (len(z) - 1) * around
+        faces.append(np.column_stack([np.full(around, pole), last + ring, last + (ring + 1) % around]))
+    if extra:
+        vertices = np.vstack([vertices, extra])
+    return vertices, np.vstack(faces)
+
+
+def capsule(length, radius, around=48, along=80, cap_rings=12):
+    """Capsule along z from −length/2 to +length/2 (tip to tip), rings all along its cylinder."""
+    half = length / 2 - radius
+    phi = np.linspace(0.0, np.pi / 2, cap_rings + 1)[1:]
+    bottom_z = -half - radius * np.cos(phi)
+    bottom_r = radius * np.sin(phi)
+    middle = np.linspace(-half, half, along)[1:-1]
+    z = np.concatenate([bottom_z, middle, -bottom_z[::-1]])
+    r = np.concatenate([bottom_r, np.full(len(middle), radius), bottom_r[::-1]])
+    return revolution(z, r, around, bottom_pole=-length / 2, top_pole=length / 2)
+
+
+def prism_volume(radius, height, around):
+    """Exact volume of a regular-polygon prism inscribed in a cylinder."""
+    return height * 0.5 * around * radius**2 * np.sin(2 * np.pi / around)
+
+
+def random_rotation(seed=0):
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def legs_body(transform=lambda v: v):
+    """Two capsules (length 10, radius 1, along z) side by side; below z = −2 they are forelimbs.
+
+    Each forelimb runs from the cut at z = −2 to the tip at z = −5: length 3, radius 1 except on
+    the hemispherical tip (z < −4).
+    """
+    v1, f1 = capsule(10.0, 1.0)
+    vertices = np.vstack([v1, v1 + [4.0, 0.0, 0.0]])
+    faces = np.vstack([f1, f1 + len(v1)])
+    labels = np.where(vertices[:, 2] < -2.0, 0, 1)
+    return Body(transform(vertices), faces, labels, ("forelimbs", "chest"))
+
+
+def leg_cut(body):
+    """Height of the cut between forelimbs and body: the region's faces (≥ 2 of 3 vertices
+    labelled) end in a zigzag between the last labelled ring and the next one."""
+    z = body.vertices[:, 2]
+    labelled = body.region_mask("forelimbs")
+    last = z[labelled].max()
+    return 0.5 * (last + z[~labelled & (z > last)].min())
+
+
+# ---------------------------------------------------------------------------------------------
+# Volumes
+
+
+def test_sphere_and_ellipsoid_volume():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=2.0)
+    assert enclosed_volume(sphere.vertices, sphere.faces) == pytest.approx(4 / 3 * np.pi * 8, rel=5e-3)
+    ellipsoid = sphere.vertices * [1.0, 0.5, 3.0] / 2.0
+    assert enclosed_volume(ellipsoid, sphere.faces) == pytest.approx(4 / 3 * np.pi * 1.5, rel=5e-3)
+
+
+def test_cylinder_volume_is_exact_and_does_not_depend_on_position():
+    cylinder = trimesh.creation.cylinder(radius=1.5, height=4.0, sections=32)
+    exact = prism_volume(1.5, 4.0, 32)
+    assert enclosed_volume(cylinder.vertices, cylinder.faces) == pytest.approx(exact, rel=1e-12)
+    far = cylinder.vertices + [1e6, -2e6, 3e6]
+    assert enclosed_volume(far, cylinder.faces) == pytest.approx(exact, rel=1e-9)
+
+
+def test_open_cylinder_is_capped_for_volume():
+    vertices, faces = revolution(np.linspace(0.0, 4.0, 9), np.full(9, 1.5), around=32)
+    assert len(boundary_loops(vertices, faces)) == 2
+    for cap in (capped, measures._fan_caps):
+        closed_vertices, closed_faces = cap(vertices, faces)
+        assert boundary_loops(closed_vertices, closed_faces) == []
+        assert enclosed_volume(closed_vertices, closed_faces) == pytest.approx(prism_volume(1.5, 4.0, 32), rel=1e-12)
+    # the input arrays are untouched
+    assert len(faces) == 2 * 8 * 32
+
+
+def test_body_mass_of_an_inside_out_body_is_an_error():
+    vertices, faces = capsule(4.0, 1.0)
+    assert body_mass(Body(vertices, faces)) > 0
+    with pytest.raises(MeasurementError, match="volume cannot be determined even after capping"):
+        body_mass(Body(vertices, faces[:, ::-1]))
+
+
+def test_region_mass_of_the_legs():
+    body = legs_body()
+    # each leg: the cylinder from the cut (~−2) to −4 plus a hemisphere of radius 1
+    cut = leg_cut(body)
+    expected = 2 * (np.pi * (cut + 4.0) + 2 / 3 * np.pi)
+    assert region_mass(body, "forelimbs") == pytest.approx(expected, rel=0.01)
+    assert region_mass(body, "forelimbs") + region_mass(body, "chest") == pytest.approx(body_mass(body), rel=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# Loops and skeletons
+
+
+def test_fiedler_loops_of_a_long_capsule_are_cross_sections():
+    vertices, faces = capsule(10.0, 1.0, around=64)
+    field = fiedler_vector(vertices, faces)
+    # h₁ runs along the capsule: monotone in z along its axis
+    assert abs(np.corrcoef(field, vertices[:, 2])[0, 1]) > 0.95
+    for level in np.quantile(field, [0.3, 0.5, 0.7]):
+        loops = isocontour_loops(vertices, faces, field, level)
+        assert len(loops) == 1
+        loop = loops[0]
+        assert loop.closed
+        assert loop.girth == pytest.approx(2 * np.pi, rel=3e-3)
+        assert loop.area == pytest.approx(np.pi, rel=3e-3)
+        assert np.linalg.norm(loop.centroid[:2]) < 1e-6
+        assert abs(abs(loop.normal[2]) - 1.0) < 1e-3
+
+
+def test_plane_section_of_a_sphere_is_a_great_circle():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=3.0)
+    loops = isocontour_loops(sphere.vertices, sphere.faces, sphere.vertices[:, 0], 0.0)
+    assert len(loops) == 1
+    assert loops[0].girth == pytest.approx(6 * np.pi, rel=2e-3)
+    assert loops[0].area == pytest.approx(9 * np.pi, rel=4e-3)
+
+
+def test_open_chains_at_the_boundary_are_dropped_unless_asked_for():
+    vertices, faces = revolution(np.linspace(0.0, 4.0, 9), np.full(9, 1.0), around=32)
+    assert isocontour_loops(vertices, faces, vertices[:, 0], 0.1) == []
+    chains = isocontour_loops(vertices, faces, vertices[:, 0], 0.1, keep_open=True)
+    assert len(chains) == 2 and not any(chain.closed for chain in chains)
+    assert all(chain.girth == pytest.approx(4.0, rel=1e-9) for chain in chains)
+    # and a level through the middle of the tube gives a closed loop
+    closed = isocontour_loops(vertices, faces, vertices[:, 2], 2.0)
+    assert len(closed) == 1 and closed[0].girth == pytest.approx(2 * 32 * np.sin(np.pi / 32), rel=1e-9)
+
+
+def test_skeleton_of_a_capsule_spans_its_length():
+    vertices, faces = capsule(10.0, 1.0)
+    result = skeleton(vertices, faces, fiedler_vector(vertices, faces))
+    assert result.kinds.count("tip") == 2
+    assert result.diameter == pytest.approx(10.0, rel=0.01)
+    assert skeleton_diameter(result.graph) == result.diameter
+    # section nodes lie on the axis
+    sections = result.points[np.asarray(result.kinds) == "section"]
+    assert np.abs(sections[:, :2]).max() < 1e-6
+
+
+def test_skeleton_of_a_bent_tube_follows_the_bend():
+    # an L-shaped tube: two capsules' worth of length joined at a right angle, via a torus quarter
+    vertices, faces = capsule(12.0, 1.0, along=120)
+    # bend the upper half (z > 0) around the y-axis with bend radius 3
+    bent = vertices.copy()
+    upper = vertices[:, 2] > 0
+    angle = np.minimum(vertices[upper, 2] / 3.0, np.pi / 2)
+    straight = np.maximum(vertices[upper, 2] - 3.0 * np.pi / 2, 0.0)
+    x = vertices[upper, 0]
+    radius = 3.0 - x
+    bent[upper, 0] = 3.0 - radius * np.cos(angle) + straight
+    bent[upper, 2] = radius * np.sin(angle)
+    result = skeleton(bent, faces, fiedler_vector(bent, faces))
+    # the centreline is as long as before bending: 12 tip to tip
+    assert result.diameter == pytest.approx(12.0, rel=0.02)
+
+
+# ---------------------------------------------------------------------------------------------
+# Limbs, lengths, girths, peak stress
+
+
+def test_limb_sections_run_from_junction_to_tip():
+    body = legs_body()
+    limbs = limb_sections(body, "forelimbs")
+    assert len(limbs) == 2
+    cut = leg_cut(body)
+    for limb in limbs:
+        assert limb.length == pytest.approx(cut + 5.0, rel=0.01)
+        assert limb.junction[2] > limb.tip[2]
+        assert limb.tip[2] == pytest.approx(-5.0)
+        heights = [section.loop.centroid[2] for section in limb.sections]
+        assert np.all(np.diff(heights) < 0)                      # ordered junction → tip
+        fractions = [section.fraction for section in limb.sections]
+        assert 0 < fractions[0] < 0.1 and 0.95 < fractions[-1] < 1
+        middle = limb.section_at(0.5)
+        assert np.sqrt(middle.area / np.pi) == pytest.approx(1.0, rel=5e-3)
+        assert middle.loop.centroid[2] == pytest.approx(limb.junction[2] - 0.5 * limb.length, abs=0.02)
+
+
+def test_region_length_is_the_mean_limb_length_and_matches_the_skeleton():
+    body = legs_body()
+    cut = leg_cut(body)
+    assert region_length(body, "forelimbs") == pytest.approx(cut + 5.0, rel=0.01)
+    assert region_length(body, "forelimbs") == pytest.approx(np.mean([limb.length for limb in limb_sections(body, "forelimbs")]), rel=0.01)
+    assert region_girth(body, "forelimbs") == pytest.approx(2 * np.pi, rel=5e-3)
+
+
+def test_load_bearing_section_is_the_smallest_away_from_junction_and_tip():
+    body = legs_body()
+    chosen = load_bearing_section(body)
+    assert chosen.region == "forelimbs"
+    # the smallest section inside the window is at its tip-side end, on the hemisphere
+    assert chosen.section.fraction == pytest.approx(1.0 - measures.TIP_SKIP, abs=0.03)
+    limb = limb_sections(body, "forelimbs")[chosen.part]
+    depth_into_cap = -4.0 - chosen.section.loop.centroid[2]
+    assert depth_into_cap > 0
+    assert chosen.area == pytest.approx(np.pi * (1 - depth_into_cap**2), rel=0.01)
+    window = [s.area for s in limb.sections if measures.JUNCTION_SKIP <= s.fraction <= 1 - measures.TIP_SKIP]
+    assert chosen.area == pytest.approx(min(window))
+    assert peak_stress(body) == pytest.approx(body_mass(body) / chosen.area)
+
+
+def test_load_bearing_section_override():
+    body = legs_body()
+    chosen = load_bearing_section(body, override=SectionChoice("forelimbs", 0.4, part=1))
+    assert chosen.part == 1
+    assert chosen.area == pytest.approx(np.pi, rel=5e-3)
+    assert chosen.section.loop.centroid[0] == pytest.approx(4.0, abs=1e-6)
+    sigma = peak_stress(body, override=SectionChoice("forelimbs", 0.4))
+    assert sigma == pytest.approx(body_mass(body) / np.pi, rel=5e-3)
+    with pytest.raises(MeasurementError, match="between 0"):
+        load_bearing_section(body, override=SectionChoice("forelimbs", 1.5))
+    with pytest.raises(MeasurementError, match="part 2 does not exist"):
+        load_bearing_section(body, override=SectionChoice("forelimbs", 0.5, part=2))
+
+
+def test_missing_regions_are_clear_errors():
+    vertices, faces = capsule(10.0, 1.0)
+    unlabelled = Body(vertices, faces)
+    with pytest.raises(MeasurementError, match="needs a limb region"):
+        peak_stress(unlabelled)
+    with pytest.raises(MeasurementError, match="no region 'head'"):
+        region_length(unlabelled, "head")
+    with pytest.raises(MeasurementError, match="no region 'head'"):
+        region_mass(unlabelled, "head")
+
+
+@pytest.mark.parametrize("scale", [1000.0, 0.001])
+def test_measures_scale_and_rotate_as_they_should(scale):
+    rotation = random_rotation(3)
+    reference = legs_body()
+    moved = legs_body(lambda v: (v @ rotation.T) * scale + [5.0 * scale, -2.0 * scale, 1.0 * scale])
+    assert body_mass(moved) / body_mass(reference) == pytest.approx(scale**3, rel=1e-9)
+    assert region_mass(moved, "forelimbs") / region_mass(reference, "forelimbs") == pytest.approx(scale**3, rel=1e-9)
+    assert region_length(moved, "forelimbs") / region_length(reference, "forelimbs") == pytest.approx(scale, rel=1e-6)
+    assert region_girth(moved, "forelimbs") / region_girth(reference, "forelimbs") == pytest.approx(scale, rel=1e-6)
+    # isometric scaling by s multiplies σ = M / A by s
+    assert peak_stress(moved) / peak_stress(reference) == pytest.approx(scale, rel=1e-6)
+
+
+def torso_body(with_forelimbs=True, frame=None):
+    """A torso along z (abdomen z < 0, chest 0 ≤ z < 3, neck above), radius growing toward the
+    front of the chest; a forelimb patch under the chest between z = 1.5 and 2.2."""
+    z = np.linspace(-5.0, 5.0, 201)
+    r = np.where((z >= 0) & (z < 3), 2.0 + 0.1 * z, 2.0)
+    vertices, faces = revolution(z, r, around=64, bottom_pole=-5.5, top_pole=5.5)
+    labels = np.where(vertices[:, 2] < 0, 1, np.where(vertices[:, 2] < 3, 0, 2))
+    if with_forelimbs:
+        patch = (vertices[:, 2] >= 1.5) & (vertices[:, 2] <= 2.2) & (vertices[:, 1] < -1.0)
+        labels[patch] = 3
+    return Body(vertices, faces, labels, ("chest", "abdomen", "neck", "forelimbs"), frame)
+
+
+def test_chest_girth_is_the_largest_section_behind_the_forelimbs():
+    body = torso_body()
+    # the section just behind the forelimb patch (z ≈ 1.45) is the largest there: r ≈ 2.145
+    girth = region_girth(body, "chest")
+    rear_of_patch = body.vertices[body.region_mask("forelimbs"), 2].min()
+    assert girth < 2 * np.pi * (2.0 + 0.1 * rear_of_patch)
+    assert girth == pytest.approx(2 * np.pi * (2.0 + 0.1 * rear_of_patch), rel=0.01)
+    # without forelimbs the largest chest section is at the front
+    assert region_girth(torso_body(with_forelimbs=False), "chest") == pytest.approx(2 * np.pi * 2.3, rel=0.01)
+    # the axis derived from the labels points from abdomen to chest, close to the true axis
+    assert measures.torso_axis(body) @ [0.0, 0.0, 1.0] > np.cos(np.radians(3.0))
+    # a frame gives the axis exactly
+    framed = torso_body(frame=Frame(up=np.array([0.0, 1.0, 0.0]), forward=np.array([0.0, 0.0, 1.0])))
+    assert np.allclose(measures.torso_axis(framed), [0.0, 0.0, 1.0])
+    assert region_girth(framed, "chest") == pytest.approx(2 * np.pi * (2.0 + 0.1 * rear_of_patch), rel=0.01)
+    assert region_girth(body, "abdomen") == pytest.approx(2 * np.pi * 2.0, rel=0.01)
+
+
+def test_cache_is_per_body():
+    body = legs_body()
+    first = region_length(body, "forelimbs")
+    bigger = body.with_vertices(body.vertices * 2.0)
+    assert region_length(bigger, "forelimbs") == pytest.approx(2 * first, rel=1e-6)
+    assert region_length(body, "forelimbs") == first
