@@ -10,9 +10,10 @@ material) and positions for the *source's* vertex layout (same vertex count and 
 :meth:`allorules.preparation.PreparedMesh.source_positions`), the output keeps the input's
 texture coordinates and material references, with normals recomputed for the new shape:
 
-* OBJ from an OBJ input: the input file is rewritten line by line — new ``v`` positions, fresh
-  ``vn`` normals, and everything else (``vt``, ``mtllib``, ``usemtl``, groups, smoothing) kept
-  as it was, so multi-material files stay multi-material. The ``.mtl`` and its textures are
+* OBJ from an OBJ input: the input file is rewritten line by line — new ``v`` positions, each
+  ``vn`` recomputed for the new shape over the corners that use it (hard edges stay hard), and
+  everything else (``f``, ``vt``, ``mtllib``, ``usemtl``, groups, smoothing) kept verbatim, so
+  multi-material files stay multi-material and the file loads back with the input's layout. The ``.mtl`` and its textures are
   referenced, and copied next to the output only when they are missing there.
 * GLB, PLY, and OBJ from other inputs: through trimesh, with the source's visual (UVs,
   material) attached.
@@ -309,6 +310,10 @@ def _rewrite_obj(input_path: Path, source: Any, vertices: np.ndarray, result: Sa
 
     Input ``v`` lines are matched to the source's vertices by their exact parsed coordinates
     (trimesh splits vertices at UV seams, so several source vertices may share one ``v`` line).
+    ``f`` lines are kept verbatim, so the output loads back with the source's exact layout, and
+    every ``vn`` line is replaced in place by the normal of the new shape over the face corners
+    that use it (area-weighted): smooth stays smooth and hard edges stay hard. An input without
+    normals gets none (Blender then computes them from the shape).
     """
     try:
         lines = input_path.read_text(encoding="utf-8", errors="surrogateescape").splitlines()
@@ -317,16 +322,14 @@ def _rewrite_obj(input_path: Path, source: Any, vertices: np.ndarray, result: Sa
         return None
 
     file_positions: list[tuple[float, float, float]] = []
-    vertex_line: list[int] = []
     for number, line in enumerate(lines):
-        if line.startswith("v ") or line.startswith("v\t"):
+        if _keyword(line) == "v":
             parts = line.split()
             try:
                 file_positions.append((float(parts[1]), float(parts[2]), float(parts[3])))
             except (IndexError, ValueError):
                 result.notes.append(f"{input_path.name}:{number + 1}: unreadable vertex line; wrote a plain OBJ")
                 return None
-            vertex_line.append(number)
     if not file_positions:
         return None
 
@@ -353,63 +356,110 @@ def _rewrite_obj(input_path: Path, source: Any, vertices: np.ndarray, result: Sa
     count = np.zeros(len(file_positions))
     np.add.at(total, source_to_file, vertices)
     np.add.at(count, source_to_file, 1)
+    mean = total / np.maximum(count, 1)[:, None]
     new_positions = np.asarray(file_positions, dtype=np.float64)
     used = count[key_of_file] > 0
-    new_positions[used] = total[key_of_file[used]] / count[key_of_file[used], None]
-    spread = np.zeros(len(file_positions))
-    np.maximum.at(spread, source_to_file, np.linalg.norm(vertices - (total / np.maximum(count, 1)[:, None])[source_to_file], axis=1))
+    new_positions[used] = mean[key_of_file[used]]
+    spread = np.linalg.norm(vertices - mean[source_to_file], axis=1)
     if spread.max() > 1e-9 * max(1.0, float(np.abs(vertices).max())):
         result.notes.append("input vertices that share a position were moved apart; wrote their mean position")
 
-    # Normals of the new shape on the file's vertex layout.
-    file_faces = key_of_file[source_to_file[np.asarray(source.faces, dtype=np.int64)]]
-    normals = vertex_normals(new_positions, file_faces)
+    normals, keep = _obj_normals(lines, new_positions)
+    if normals is None:
+        result.notes.append(f"{input_path.name}: unreadable face line; wrote a plain OBJ")
+        return None
 
     out: list[str] = [f"# written by allorules from {input_path.name}: positions scaled, normals recomputed"]
-    vertex_count = 0
-    normals_written = False
+    vertex_count = normal_count = 0
     had_uv = False
     for line in lines:
-        stripped = line.lstrip()
-        if stripped.startswith("v ") or stripped.startswith("v\t"):
-            parts = stripped.split()
+        keyword = _keyword(line)
+        if keyword == "v":
+            parts = line.split()
             x, y, z = new_positions[vertex_count]
             vertex_count += 1
             out.append(" ".join(["v", _number(x), _number(y), _number(z), *parts[4:]]))
-        elif stripped.startswith("vn ") or stripped.startswith("vn\t"):
-            continue  # replaced by the recomputed normals
-        elif stripped.startswith("f ") or stripped.startswith("f\t"):
-            if not normals_written:
-                out.extend(f"vn {_number(a)} {_number(b)} {_number(c)}" for a, b, c in normals)
-                normals_written = True
-            out.append(_face_with_normals(stripped, vertex_count))
+        elif keyword == "vn":
+            if keep[normal_count]:
+                out.append(line)  # no face uses it, or its faces cancel: leave it as it was
+            else:
+                a, b, c = normals[normal_count]
+                out.append(f"vn {_number(a)} {_number(b)} {_number(c)}")
+            normal_count += 1
         else:
-            if stripped.startswith("vt"):
-                had_uv = True
+            had_uv = had_uv or keyword == "vt"
             out.append(line)
-    result.carried.append("normals recomputed")
+    if normal_count:
+        result.carried.append("normals recomputed (hard and smooth edges as in the input)")
+    else:
+        result.notes.append("the input OBJ has no normals; none written (Blender computes them from the shape)")
     if had_uv:
         result.carried.append("UVs")
     result.carried.append("OBJ groups, smoothing and usemtl kept")
     return "\n".join(out) + "\n"
 
 
+def _keyword(line: str) -> str:
+    stripped = line.lstrip()
+    end = 0
+    while end < len(stripped) and not stripped[end].isspace():
+        end += 1
+    return stripped[:end]
+
+
+def _obj_normals(lines: list[str], positions: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """Recomputed ``vn`` values: n_k ∝ Σ over face corners using normal k of the face's
+    (fan-triangulated) area vector. Returns (normals, keep) where ``keep`` marks normals no face
+    determines (unused, or faces that cancel out) — those stay as in the input."""
+    triangles: list[tuple[int, int, int]] = []
+    corner_normals: list[tuple[int, int, int]] = []
+    vertex_count = normal_count = 0
+    for line in lines:
+        keyword = _keyword(line)
+        if keyword == "v":
+            vertex_count += 1
+        elif keyword == "vn":
+            normal_count += 1
+        elif keyword == "f":
+            corners = []
+            try:
+                for token in line.split()[1:]:
+                    pieces = token.split("/")
+                    vertex = int(pieces[0])
+                    vertex = vertex - 1 if vertex > 0 else vertex_count + vertex
+                    normal = -1
+                    if len(pieces) > 2 and pieces[2]:
+                        normal = int(pieces[2])
+                        normal = normal - 1 if normal > 0 else normal_count + normal
+                    corners.append((vertex, normal))
+            except ValueError:
+                return None, np.zeros(0, dtype=bool)
+            for k in range(1, len(corners) - 1):  # fan triangulation
+                triangle = (corners[0], corners[k], corners[k + 1])
+                triangles.append(tuple(corner[0] for corner in triangle))
+                corner_normals.append(tuple(corner[1] for corner in triangle))
+    normals = np.zeros((normal_count, 3))
+    if normal_count == 0 or not triangles:
+        return normals, np.ones(normal_count, dtype=bool)
+    triangles_array = np.asarray(triangles, dtype=np.int64)
+    if triangles_array.min() < 0 or triangles_array.max() >= len(positions):
+        return None, np.zeros(0, dtype=bool)
+    corners = positions[triangles_array]
+    area_vector = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal_index = np.asarray(corner_normals, dtype=np.int64)
+    magnitude = np.zeros(normal_count)
+    for k in range(3):
+        valid = (normal_index[:, k] >= 0) & (normal_index[:, k] < normal_count)
+        np.add.at(normals, normal_index[valid, k], area_vector[valid])
+        np.add.at(magnitude, normal_index[valid, k], np.linalg.norm(area_vector[valid], axis=1))
+    length = np.linalg.norm(normals, axis=1)
+    determined = length > 1e-6 * np.maximum(magnitude, 1e-300)
+    normals[determined] /= length[determined, None]
+    return normals, ~determined
+
+
 def _number(value: float) -> str:
     return f"{value:.9g}"
-
-
-def _face_with_normals(line: str, vertices_so_far: int) -> str:
-    """``f a/b/c …`` with each corner's normal index set to its vertex index (absolute)."""
-    parts = line.split()
-    corners = []
-    for token in parts[1:]:
-        pieces = token.split("/")
-        vertex = int(pieces[0])
-        if vertex < 0:  # relative index
-            vertex = vertices_so_far + 1 + vertex
-        texture = pieces[1] if len(pieces) > 1 else ""
-        corners.append(f"{vertex}/{texture}/{vertex}")
-    return "f " + " ".join(corners)
 
 
 _MTLLIB = re.compile(r"^\s*mtllib\s+(.+?)\s*$")
