@@ -130,35 +130,42 @@ class PluginRegistry(pluggy.PluginManager):
             self.add_plugin(module, entry_point.name, ORIGIN_ENTRY_POINT, location)
 
     def load_path(self, path: str | Path) -> str | None:
-        """Load a plugin from a ``.py`` file or a package folder; return its name (None on failure).
+        """Load a plugin from a ``.py`` file, a package folder or a plugin project folder.
 
-        Loading the same file twice (say from ``--plugin`` and from a ruleset, or a path to
+        A project folder (no ``__init__.py``, but a ``pyproject.toml`` declaring
+        ``[project.entry-points.allorules]``) loads the modules its entry points name, from
+        that folder. Returns the plugin's name (the last one for a project), None on failure.
+        Loading the same module twice (say from ``--plugin`` and from a ruleset, or a path to
         a module that is also installed) registers it once.
         """
         path = Path(path).expanduser()
-        name = path.stem if path.is_file() else path.name
+        name = path.stem if path.suffix == ".py" else path.name
         if not path.exists():
             self._fail(name, ORIGIN_PATH, f"{path} does not exist; give the path of a .py file or a package folder")
             return None
+        if path.is_dir() and not (path / "__init__.py").is_file():
+            if (path / "pyproject.toml").is_file():
+                return self._load_project(path)
+            self._fail(name, ORIGIN_PATH, f"{path} is a folder without __init__.py or pyproject.toml; "
+                       "give a .py file, a package folder or a plugin project folder")
+            return None
         if path.is_dir():
-            init = path / "__init__.py"
-            if not init.is_file():
-                self._fail(name, ORIGIN_PATH, f"{path} is a folder without __init__.py; give a .py file or a package folder")
-                return None
-            module_file = init.resolve()
+            module_file = (path / "__init__.py").resolve()
         elif path.suffix != ".py":
             self._fail(name, ORIGIN_PATH, f"{path} is not a .py file; give a .py file or a package folder")
             return None
         else:
             module_file = path.resolve()
+        module_name = f"allorules_plugin_{name.replace('-', '_').replace('.', '_')}"
         for plugin_name, module in self.list_name_plugin():
             registered_file = getattr(module, "__file__", None)
             if registered_file and Path(registered_file).resolve() == module_file:
                 return plugin_name
+            if getattr(module, "__name__", None) in (name, module_name):   # the same module, installed
+                return plugin_name
         if self.has_plugin(name):
             self._fail(name, ORIGIN_PATH, f"{path}: another plugin is already registered as {name!r}; rename the file")
             return None
-        module_name = f"allorules_plugin_{name.replace('-', '_')}"
         try:
             spec = importlib.util.spec_from_file_location(
                 module_name, module_file,
@@ -169,11 +176,44 @@ class PluginRegistry(pluggy.PluginManager):
             module = importlib.util.module_from_spec(spec)
             sys.modules[module_name] = module
             spec.loader.exec_module(module)
-        except Exception as error:
+        except BaseException as error:  # SystemExit/KeyboardInterrupt in a plugin's import too
             sys.modules.pop(module_name, None)
-            self._fail(name, ORIGIN_PATH, f"failed to import {path}: {_one_line(error)}")
+            if isinstance(error, KeyboardInterrupt):
+                raise
+            self._fail(name, ORIGIN_PATH, f"failed to import {path}: {type(error).__name__}: {_one_line(error)}")
             return None
         return name if self.add_plugin(module, name, ORIGIN_PATH, str(module_file)) else None
+
+    def _load_project(self, folder: Path) -> str | None:
+        """Load the modules a plugin project's pyproject.toml declares as allorules entry points."""
+        name = folder.name
+        try:
+            import tomllib
+        except ImportError:  # Python 3.10
+            self._fail(name, ORIGIN_PATH, f"{folder}: reading pyproject.toml needs Python 3.11; give the .py file instead")
+            return None
+        try:
+            project = tomllib.loads((folder / "pyproject.toml").read_text(encoding="utf-8"))
+            declared = project["project"]["entry-points"][ENTRY_POINT_GROUP]
+        except (KeyError, TypeError):
+            self._fail(name, ORIGIN_PATH, f"{folder}/pyproject.toml declares no [project.entry-points.allorules]; "
+                       "give the plugin's .py file instead")
+            return None
+        except Exception as error:
+            self._fail(name, ORIGIN_PATH, f"{folder}/pyproject.toml cannot be read: {_one_line(error)}")
+            return None
+        loaded = None
+        for value in declared.values():
+            module = str(value).split(":")[0].strip()
+            relative = Path(*module.split("."))
+            for candidate in (folder / relative.with_suffix(".py"), folder / relative,
+                              folder / "src" / relative.with_suffix(".py"), folder / "src" / relative):
+                if candidate.is_file() or (candidate / "__init__.py").is_file():
+                    loaded = self.load_path(candidate) or loaded
+                    break
+            else:
+                self._fail(name, ORIGIN_PATH, f"{folder}: entry point module {module!r} not found in the folder")
+        return loaded
 
     def load_paths(self, paths: Iterable[str | Path]) -> None:
         for path in paths:

@@ -602,6 +602,12 @@ def _apply(document: _Document, merged: _Merged) -> None:
                     merged_where[name] = where[name]
                 for name in entry.get("parameters", {}):
                     merged_where[f"parameters.{name}"] = document.at(section, index, "parameters", name)
+                changed = [name for name in ("exponent", "region", "measure", "parameters") if name in entry]
+                if changed and "source" not in entry:   # an inherited source no longer vouches for the value
+                    old = " ".join(str(inherited.fields.get("source", "")).split())
+                    fields["source"] = (f"{', '.join(changed)} overridden in {document.path.name}"
+                                        + (f"; before: {old}" if old else ""))
+                    merged_where["source"] = location
                 table[key] = _Entry(fields, merged_where, location)
             else:
                 for name in entry.get("parameters", {}):
