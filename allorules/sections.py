@@ -41,6 +41,7 @@ class Loop:
     faces: np.ndarray             # (k,) for a closed loop, (k-1,) for an open chain
     level: float = float("nan")   # the field value it is an isocontour of (nan: a mesh boundary)
     closed: bool = True
+    vertex_ids: np.ndarray | None = None   # for a mesh boundary: the mesh vertex of each point
 
     def _segments(self) -> tuple[np.ndarray, np.ndarray]:
         following = np.roll(self.points, -1, axis=0) if self.closed else self.points[1:]
@@ -218,7 +219,7 @@ def boundary_loops(vertices: np.ndarray, faces: np.ndarray) -> list[Loop]:
             continue
         following = np.roll(order, -1) if closed else order[1:]
         crossed = [face_of_edge.get((min(p, q), max(p, q)), -1) for p, q in zip(order.tolist(), following.tolist())]
-        loops.append(Loop(vertices[nodes[order]], np.asarray(crossed, dtype=np.int64), float("nan"), closed))
+        loops.append(Loop(vertices[nodes[order]], np.asarray(crossed, dtype=np.int64), float("nan"), closed, nodes[order]))
     return loops
 
 

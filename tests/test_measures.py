@@ -339,3 +339,19 @@ def test_cache_is_per_body():
     bigger = body.with_vertices(body.vertices * 2.0)
     assert region_length(bigger, "forelimbs") == pytest.approx(2 * first, rel=1e-6)
     assert region_length(body, "forelimbs") == first
+
+
+def test_carried_fields_measure_a_deformed_body_on_the_same_curves():
+    reference = legs_body()
+    reference_length = region_length(reference, "forelimbs")
+    reference_girth = region_girth(reference, "forelimbs")
+    stretch = np.array([1.0, 1.0, 1.2])
+    stretched = measures.carry_fields(reference, reference.with_vertices(reference.vertices * stretch))
+    assert "measures.fields:forelimbs" in stretched.cache
+    assert region_length(stretched, "forelimbs") == pytest.approx(1.2 * reference_length, rel=0.01)
+    assert region_girth(stretched, "forelimbs") == pytest.approx(reference_girth, rel=0.005)
+    fresh = reference.with_vertices(reference.vertices * stretch)
+    assert region_length(fresh, "forelimbs") == pytest.approx(region_length(stretched, "forelimbs"), rel=0.01)
+    other = Body(reference.vertices, reference.faces[::-1], reference.labels, reference.region_names)
+    with pytest.raises(ValueError, match="same faces"):
+        measures.carry_fields(reference, other)
