@@ -38,7 +38,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from .body import UNLABELLED, Frame  # noqa: E402
-from .export import atomic_write, vertex_normals  # noqa: E402
+from .export import atomic_write  # noqa: E402
 
 VIEWS = ("side", "three-quarter", "front", "top")
 DEFAULT_SIZE = (900, 600)          # pixels (width, height) of a whole picture
@@ -224,19 +224,70 @@ def shade(face_normals_camera: np.ndarray, base_rgba: np.ndarray) -> np.ndarray:
     return colors
 
 
-def _smooth_face_normals(camera_vertices: np.ndarray, faces: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Per-face shading normals: the mean of the face's area-weighted vertex normals (smooth,
-    Gouraud-like look), falling back to the flat face normal where the two disagree (creases,
-    inconsistently oriented patches)."""
-    flat = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+CREASE_ANGLE_DEGREES = 50.0   # faces meeting at a sharper angle than this keep a hard edge
+
+
+def shading_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per-face shading normals with "auto smooth": each corner's normal is the area-weighted
+    sum of the face normals around its vertex that lie within ``CREASE_ANGLE_DEGREES`` of the
+    corner's own face; the face is shaded with the mean of its three corner normals. Organic
+    surfaces look smooth, boxes and creases stay crisp, inconsistently oriented patches fall
+    back to their flat normal. Very high-valence vertices (over 5 million corner pairs in all)
+    fall back to flat shading to bound the cost."""
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    corners = vertices[faces]
+    flat = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])   # 2·area·n
     flat_length = np.linalg.norm(flat, axis=1)
-    flat_unit = np.where(flat_length[:, None] > 0, flat / np.maximum(flat_length, 1e-300)[:, None], 0.0)
-    vertex = vertex_normals(camera_vertices, faces)
-    smooth = vertex[faces].mean(axis=1)
+    flat_unit = flat / np.maximum(flat_length, 1e-300)[:, None]
+    face_count = len(faces)
+    corner_vertex = faces.reshape(-1)
+    corner_face = np.repeat(np.arange(face_count), 3)
+    order = np.argsort(corner_vertex, kind="stable")
+    sorted_vertex = corner_vertex[order]
+    starts = np.flatnonzero(np.r_[True, sorted_vertex[1:] != sorted_vertex[:-1]])
+    degree = np.diff(np.r_[starts, len(sorted_vertex)])
+    group_of_sorted = np.repeat(np.arange(len(starts)), degree)
+    pairs_per_corner = degree[group_of_sorted]
+    if pairs_per_corner.sum() > 5_000_000:
+        return flat_unit
+    # every (corner i, corner j) pair at the same vertex, in sorted-corner numbering
+    first = np.repeat(np.arange(len(sorted_vertex)), pairs_per_corner)
+    block_start = np.repeat(np.cumsum(pairs_per_corner) - pairs_per_corner, pairs_per_corner)
+    second = starts[group_of_sorted][first] + (np.arange(len(first)) - block_start)
+    face_i = corner_face[order][first]
+    face_j = corner_face[order][second]
+    keep = (flat_unit[face_i] * flat_unit[face_j]).sum(axis=1) > np.cos(np.radians(CREASE_ANGLE_DEGREES))
+    target = order[first[keep]]
+    source = flat[face_j[keep]]
+    corner_normals = np.column_stack(
+        [np.bincount(target, weights=source[:, axis], minlength=len(corner_vertex)) for axis in range(3)]
+    )
+    smooth = corner_normals.reshape(face_count, 3, 3).sum(axis=1)
     smooth_length = np.linalg.norm(smooth, axis=1)
     smooth_unit = smooth / np.maximum(smooth_length, 1e-300)[:, None]
-    agree = (smooth_length > 1e-6) & ((smooth_unit * flat_unit).sum(axis=1) > 0.5)
+    agree = (smooth_length > 0) & ((smooth_unit * flat_unit).sum(axis=1) > 0.5)
     return np.where(agree[:, None], smooth_unit, flat_unit)
+
+
+def outward_orientation(vertices: np.ndarray, faces: np.ndarray) -> int:
+    """+1 if the faces are consistently oriented with normals outward, -1 if consistently inward,
+    0 if the orientation is inconsistent or the enclosed volume is (near) zero.
+
+    Consistent: no directed edge is used twice. Outward: signed volume
+    V = Σ_f v0 · (v1 × v2) / 6 > 0 (divergence theorem; holes only perturb it slightly).
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    if len(np.unique(directed, axis=0)) != len(directed):
+        return 0
+    corners = np.asarray(vertices, dtype=float)[faces]
+    centred = corners - corners.reshape(-1, 3).mean(axis=0)
+    volume = np.einsum("ij,ij->i", centred[:, 0], np.cross(centred[:, 1], centred[:, 2])).sum() / 6.0
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+    if abs(volume) < 1e-6 * max(area, 1e-300) ** 1.5:
+        return 0
+    return 1 if volume > 0 else -1
 
 
 def make_shot(
@@ -246,8 +297,17 @@ def make_shot(
     *,
     vertex_colors: Any = None,
     face_colors: Any = None,
+    normals: np.ndarray | None = None,
+    orientation: int | None = None,
 ) -> Shot:
-    """Project, shade and sort (back to front) a mesh for one camera."""
+    """Project, shade and sort (back to front) a mesh for one camera.
+
+    ``normals``: per-face shading normals in mesh coordinates (default :func:`shading_normals`;
+    pass them when drawing one mesh from several cameras); ``orientation``: see
+    :func:`outward_orientation` (computed when None). On a consistently oriented mesh the faces
+    turned away from the viewer are drawn first, then the faces towards it, each group back to
+    front: on a closed mesh this is exact whatever the triangle sizes (plain depth sorting of
+    large triangles can be wrong); open meshes still show their inside through holes."""
     vertices = np.asarray(vertices, dtype=float)
     faces = np.asarray(faces, dtype=np.int64)
     if not np.isfinite(vertices).all():
@@ -255,7 +315,9 @@ def make_shot(
     basis = np.stack([camera.right, camera.up, camera.toward_viewer], axis=1)  # world -> camera
     camera_vertices = vertices @ basis
     corners = camera_vertices[faces]
-    normals = _smooth_face_normals(camera_vertices, faces, corners)
+    if normals is None:
+        normals = shading_normals(vertices, faces)
+    normals = np.asarray(normals, dtype=float) @ basis
     if face_colors is not None:
         base = _as_rgba(face_colors, len(faces), "face_colors")
     elif vertex_colors is not None:
@@ -263,7 +325,14 @@ def make_shot(
     else:
         base = np.tile(BASE_COLOR, (len(faces), 1))
     colors = shade(normals, base)
-    order = np.argsort(corners[:, :, 2].mean(axis=1), kind="stable")  # far first
+    if orientation is None:
+        orientation = outward_orientation(vertices, faces)
+    depth = corners[:, :, 2].mean(axis=1)
+    if orientation:
+        flat = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])[:, 2] * orientation
+        order = np.lexsort((depth, flat > 0))   # turned away first, then far first
+    else:
+        order = np.argsort(depth, kind="stable")  # far first
     return Shot(
         triangles=corners[order][:, :, :2],
         colors=colors[order],
@@ -433,9 +502,12 @@ def render_views(
     top, bottom = _layout(title, legend, size)
     up, forward, lateral = resolve_frame(vertices, frame)
     panel_width = 1.0 / len(views)
+    normals = shading_normals(vertices, faces)
+    orientation = outward_orientation(vertices, faces)
     for number, view in enumerate(views):
         camera = camera_for(view, up, forward, lateral)
-        shot = make_shot(vertices, faces, camera, vertex_colors=vertex_colors, face_colors=face_colors)
+        shot = make_shot(vertices, faces, camera, vertex_colors=vertex_colors, face_colors=face_colors,
+                         normals=normals, orientation=orientation)
         axes = _bare_axes(figure, [number * panel_width, bottom, panel_width, 1 - top - bottom])
         _draw_shot(axes, shot)
         _fit_limits(axes, shot.bounds)
