@@ -14,9 +14,10 @@ Two residuals, both dimensionless and 0 when met, for a step with body-mass rati
     F is the fineness ratio, body length over body diameter; the drag of a swimmer depends
     on it (lowest near 4.5 for streamlined bodies, Webb 1975), and keeping F keeps the
     original's streamlining at the new size. Length is the extent along the body's forward
-    direction (its principal axis when the body has no frame), diameter the geometric mean
-    of the extents across it; points are face centroids weighted by area, so F does not
-    depend on the mesh's size, orientation or tessellation. ``streamlining`` = 0 drops it.
+    direction (its principal axis when the body has no frame), diameter 2√2 (λ_a λ_b)^(1/4)
+    from the variances across it (2R for a round body of radius R); points are face
+    centroids weighted by area, so F depends neither on the mesh's size and orientation nor
+    (much) on its tessellation. ``streamlining`` = 0 drops it.
 
 Use: ``pip install plugins/allorules-swimming`` (entry point ``swimming``), or
 ``--plugin path/to/allorules_swimming.py``, or ``plugins: [allorules_swimming.py]`` in a
@@ -32,28 +33,36 @@ from allorules.specs import ConstraintSpec, ParameterSpec
 
 
 def fineness_ratio(body) -> float:
-    """Body length over body diameter (see the module docstring): dimensionless."""
+    """Body length over body diameter (see the module docstring): dimensionless.
+
+    Length: the extent of the surface along the body's forward direction (its frame) or, without
+    a frame, along the principal axis of largest spread. Diameter: 2√2 (λ_a λ_b)^(1/4), with
+    λ_a, λ_b the variances of the surface across that axis; exactly 2R for a circular
+    cross-section of radius R, and unchanged by any rotation about the axis.
+    """
     corners = body.vertices[body.faces]
     areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
     total = areas.sum()
     if not np.isfinite(total) or total <= 0:
         raise MeasurementError("aquatic-locomotion: the surface has no area (degenerate or NaN vertices)")
     weights = areas / total
-    points = corners.mean(axis=1)
+    points = corners.mean(axis=1)                 # face centroids, weighted by area
     centred = points - weights @ points
     covariance = (centred * weights[:, None]).T @ centred
-    _, axes = np.linalg.eigh(covariance)          # columns by increasing variance
-    if body.frame is not None:                    # length along the anatomical forward axis
+    if body.frame is not None:
         forward = np.asarray(body.frame.forward, dtype=float)
         forward = forward / np.linalg.norm(forward)
-        across = axes - np.outer(forward, forward @ axes)
-        # the two principal directions most orthogonal to forward, made orthonormal
-        order = np.argsort(-np.linalg.norm(across, axis=0))[:2]
-        side, _ = np.linalg.qr(across[:, order])
-        axes = np.column_stack([side, forward])
-    projected = centred @ axes
-    extents = projected.max(axis=0) - projected.min(axis=0)
-    length, diameter = extents[2], np.sqrt(extents[0] * extents[1])
+    else:
+        forward = np.linalg.eigh(covariance)[1][:, -1]
+    # an orthonormal basis of the plane across the body (any one: the determinant below is invariant)
+    helper = np.eye(3)[np.argmin(np.abs(forward))]
+    side = np.cross(forward, helper)
+    side /= np.linalg.norm(side)
+    across = np.column_stack([side, np.cross(forward, side)])
+    cross_section = across.T @ covariance @ across
+    along = centred @ forward
+    length = along.max() - along.min()
+    diameter = 2.0 * np.sqrt(2.0) * max(np.linalg.det(cross_section), 0.0) ** 0.25
     if not diameter > 0:
         raise MeasurementError("aquatic-locomotion: the body is flat; its fineness ratio is undefined")
     return float(length / diameter)
