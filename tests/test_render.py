@@ -347,3 +347,46 @@ def test_real_horse_side_view(tmp_path: Path) -> None:
     image = _image(render_views(mesh.vertices, mesh.faces, path=tmp_path / "horse.png", size=(600, 400)))
     width, height = _ink_box(_ink(image))
     assert width > height  # a horse from the side
+
+
+# ------------------------------------------------------------------------------------------
+# HTML report (allorules.report_html)
+
+
+def test_html_report_is_self_contained(tmp_path: Path) -> None:
+    import base64
+    import re
+
+    from allorules.report_html import Table, write_html_report
+
+    box = _long_box()
+    picture = render_views(box.vertices, box.faces, path=tmp_path / "side_view.png", size=(200, 150))
+    report = write_html_report(
+        tmp_path / "report.html",
+        title="Horse <scaled>",
+        summary={"mass ratio": 2.0, "steps": 7, "converged": True, "mesh": "horse.obj"},
+        tables=[
+            Table("Rules", ["rule", "target", "achieved"], [["foreleg length", 0.36, 0.3581]]),
+            {"title": "Regions", "rows": [{"region": "head", "vertices": 812}]},
+            [{"quantity": "mass", "value": float("nan")}],
+        ],
+        images=[picture, (tmp_path / "gone.png", "deleted picture")],
+    )
+    text = report.read_text()
+    assert "Horse &lt;scaled&gt;" in text and "<scaled>" not in text  # escaped
+    assert "foreleg length" in text and "0.3581" in text and "812" in text and "Regions" in text
+    assert "picture missing" in text  # named, not fatal
+    assert not re.search(r"(src|href)=\"(http|//)", text)  # nothing fetched from the network
+    embedded = re.search(r'src="data:image/png;base64,([^"]+)"', text)
+    assert embedded and base64.b64decode(embedded.group(1)) == picture.read_bytes()
+    picture.unlink()
+    assert "data:image/png;base64" in report.read_text()  # still complete without the file
+    assert not any(name.name.endswith(".tmp") for name in tmp_path.iterdir())
+
+
+def test_html_report_rejects_unknown_table_shapes(tmp_path: Path) -> None:
+    from allorules.report_html import write_html_report
+
+    with pytest.raises(TypeError, match="table 1"):
+        write_html_report(tmp_path / "r.html", title="t", summary={}, tables=[42])
+    assert not (tmp_path / "r.html").exists()
