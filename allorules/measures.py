@@ -31,6 +31,7 @@ from .sections import (
     boundary_loops,
     connected_parts,
     fiedler_vector,
+    harmonic_field,
     isocontour_loops,
     skeleton,
     submesh,
@@ -50,6 +51,9 @@ JUNCTION_SKIP = 0.15
 TIP_SKIP = 0.20
 # Loops per part for sections and skeletons.
 SECTION_COUNT = 40
+# A part whose second-largest opening has at least this share of the largest one's girth is a
+# tube between two openings (a neck): it is cut by the harmonic field between them.
+SECOND_OPENING_SHARE = 0.25
 # Parts of a region smaller than this share of its largest part's area are label noise.
 MINIMUM_PART_SHARE = 0.2
 
@@ -179,15 +183,23 @@ def region_parts(body: Body, region: str) -> list[RegionPart]:
 
 
 def _part_field(part: RegionPart) -> np.ndarray:
-    """The part's own Fiedler vector, oriented to grow away from its largest open boundary."""
+    """The field that runs along a part, from where it joins the body to its far end.
+
+    A limb, or any part with one opening: its own Fiedler vector, oriented to grow away from its
+    largest open boundary (the junction). A part with two openings of comparable size (a neck:
+    to the chest and to the head; the second at least ``SECOND_OPENING_SHARE`` of the first's
+    girth): the harmonic function from 0 on the larger opening to 1 on the other, which runs
+    along a tube whatever its proportions.
+    """
     if len(part.vertices) < 4:
         raise MeasurementError(f"a part of region {part.region!r} has only {len(part.vertices)} vertices; it is too small to measure")
+    openings = sorted(boundary_loops(part.vertices, part.faces), key=lambda loop: -loop.girth)
+    if (part.region not in LIMB_REGIONS and len(openings) >= 2
+            and openings[1].girth >= SECOND_OPENING_SHARE * openings[0].girth):
+        return harmonic_field(part.vertices, part.faces, openings[0].vertex_ids, openings[1].vertex_ids)
     field = fiedler_vector(part.vertices, part.faces)
-    loops = boundary_loops(part.vertices, part.faces)
-    if loops:
-        junction = max(loops, key=lambda loop: loop.girth)
-        if field[junction.vertex_ids].mean() > np.median(field):
-            field = -field
+    if openings and field[openings[0].vertex_ids].mean() > np.median(field):
+        field = -field
     return field
 
 

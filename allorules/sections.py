@@ -254,6 +254,27 @@ def fiedler_vector(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vector if vector[np.argmax(np.abs(vector))] > 0 else -vector
 
 
+def harmonic_field(vertices: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The harmonic function (L u = 0) that is 0 on the vertices ``low`` and 1 on ``high``.
+
+    With the two openings of a tube as ``low`` and ``high``, its isocontours are cross-sections
+    of the tube whatever its proportions (a Fiedler vector runs around a tube shorter than about
+    π × its radius). Other boundaries keep the natural (Neumann) condition.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    stiffness = cotangent_laplacian(vertices, np.asarray(faces, dtype=np.int64)).tocsr()
+    values = np.full(len(vertices), np.nan)
+    values[np.asarray(low)] = 0.0
+    values[np.asarray(high)] = 1.0
+    fixed = ~np.isnan(values)
+    free = np.flatnonzero(~fixed)
+    if len(free):
+        # L_ff u_f = −L_fc u_c
+        right = -stiffness[free][:, np.flatnonzero(fixed)] @ values[fixed]
+        values[free] = scipy.sparse.linalg.spsolve(stiffness[free][:, free].tocsc(), right)
+    return values
+
+
 def face_adjacency(faces: np.ndarray) -> sparse.csr_matrix:
     """Boolean face × face matrix: faces sharing an edge."""
     faces = np.asarray(faces, dtype=np.int64)

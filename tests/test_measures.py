@@ -355,3 +355,14 @@ def test_carried_fields_measure_a_deformed_body_on_the_same_curves():
     other = Body(reference.vertices, reference.faces[::-1], reference.labels, reference.region_names)
     with pytest.raises(ValueError, match="same faces"):
         measures.carry_fields(reference, other)
+
+
+def test_a_short_wide_tube_between_two_openings_is_measured_along_its_length():
+    # radius 2, length 2: its Fiedler vector runs around it, so the harmonic field between the
+    # two openings cuts it instead
+    z = np.linspace(0.0, 2.0, 21)
+    vertices, faces = revolution(z, np.full(len(z), 2.0), around=64)
+    vertices = np.vstack([vertices, [[0.0, 0.0, -1.0]]])
+    body = Body(vertices, faces, np.r_[np.zeros(len(vertices) - 1, dtype=int), 1], ("neck", "other"))
+    assert region_length(body, "neck") == pytest.approx(2.0, rel=1e-6)
+    assert region_girth(body, "neck") == pytest.approx(2 * 64 * 2.0 * np.sin(np.pi / 64), rel=1e-6)
