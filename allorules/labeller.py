@@ -83,7 +83,10 @@ def label_quadruped(body: Body, *, up=None, forward=None) -> Body:
     # Work in units of the mesh's own size: nothing below depends on its absolute scale.
     sub_vertices = (sub_vertices - np.average(sub_vertices, axis=0, weights=sub_mass)) / scale
     sub_graph = sub_graph / scale
-    labels_main, frame = _label_connected(sub_vertices, sub_graph, sub_mass, up, forward)
+    local = np.full(len(vertices), -1, dtype=np.int64)
+    local[index] = np.arange(len(index))
+    sub_faces = local[faces[main[faces].all(axis=1)]]
+    labels_main, frame = _label_connected(sub_vertices, sub_faces, sub_graph, sub_mass, up, forward)
     labels = np.full(len(vertices), UNLABELLED, dtype=np.int64)
     labels[index] = labels_main
     if not main.all():  # small separate parts (eyes, teeth) take the label of the nearest body vertex
@@ -103,7 +106,7 @@ def _unit_or_none(direction, name: str) -> np.ndarray | None:
     return direction / np.linalg.norm(direction)
 
 
-def _label_connected(vertices, graph, mass, up, forward):
+def _label_connected(vertices, faces, graph, mass, up, forward):
     extremities = find_extremities(vertices, graph, mass)
     feet, up = _find_feet(vertices, mass, extremities, up)
     height = vertices @ up
@@ -114,7 +117,7 @@ def _label_connected(vertices, graph, mass, up, forward):
         labels[legs == foot] = FORELIMBS
     for foot in hind:
         labels[legs == foot] = HINDLIMBS
-    _split_torso(vertices, graph, mass, up, forward, labels, fore, hind)
+    _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind)
     return labels, Frame(up=up, forward=forward)
 
 
@@ -371,13 +374,143 @@ def _pair_feet(vertices, mass, up, feet, legs, forward):
 
 # ---------------------------------------------------------------- torso
 
-def _split_torso(vertices, graph, mass, up, forward, labels, fore, hind) -> None:
-    """Label the rest (not legs): head, neck, chest, abdomen. Fills ``labels`` in place."""
-    rest = labels == UNLABELLED
+def _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind) -> None:
+    """Label the rest (not legs): head, neck, chest, abdomen. Fills ``labels`` in place.
+
+    From the head tip (the most forward non-leg vertex), the geodesic distance s runs down the
+    head and neck into the torso. The perimeter P(s) of its isocontours has a peak in the head,
+    a valley in the neck and grows large in the torso. Head/neck cut: at the valley (the throat);
+    neck/chest cut: where P leaves the neck's trend and rises towards the torso. Both cuts are
+    then made planar, perpendicular to the neck axis (the line through the isocontour centroids
+    between the two levels). Chest/abdomen: the vertical plane half way between the fore and
+    hind feet. The tail (behind the hind legs) stays with the abdomen.
+    """
+    rest = np.flatnonzero(labels == UNLABELLED)
     along = vertices @ forward
-    # Placeholder split, replaced below.
     fore_along = vertices[fore].mean(axis=0) @ forward
     hind_along = vertices[hind].mean(axis=0) @ forward
     middle = 0.5 * (fore_along + hind_along)
-    labels[rest & (along >= middle)] = CHEST
-    labels[rest & (along < middle)] = ABDOMEN
+    in_rest = np.zeros(len(vertices), dtype=bool)
+    in_rest[rest] = True
+    labels[in_rest & (along >= middle)] = CHEST
+    labels[in_rest & (along < middle)] = ABDOMEN
+    head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, along, np.flatnonzero(labels == FORELIMBS))
+    if head_cut is None:
+        return
+    for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
+        beyond = in_rest & ((vertices - point) @ normal > 0)
+        parts = connected_parts(graph, beyond)
+        tip = rest[np.argmax(along[rest])]
+        if beyond[tip]:
+            labels[beyond & (parts == parts[tip])] = region
+
+
+def isocontour_profile(vertices, faces, field, levels):
+    """Length and centroid of the isocontour of a per-vertex field at each level (marching triangles)."""
+    values = field[faces]
+    corners = vertices[faces]
+    lengths = np.zeros(len(levels))
+    centroids = np.zeros((len(levels), 3))
+    for k, level in enumerate(levels):
+        above = values > level
+        count = above.sum(axis=1)
+        crossing = (count == 1) | (count == 2)
+        if not crossing.any():
+            continue
+        v, c, a = values[crossing], corners[crossing], above[crossing]
+        # The lone corner (the one on the other side from the other two) and its two edges.
+        lone = np.where(a.sum(axis=1) == 1, np.argmax(a, axis=1), np.argmin(a, axis=1))
+        rows = np.arange(len(v))
+        points = []
+        for step in (1, 2):
+            other = (lone + step) % 3
+            t = (level - v[rows, lone]) / (v[rows, other] - v[rows, lone])
+            points.append(c[rows, lone] + t[:, None] * (c[rows, other] - c[rows, lone]))
+        segment = np.linalg.norm(points[1] - points[0], axis=1)
+        lengths[k] = segment.sum()
+        if lengths[k] > 0:
+            centroids[k] = (0.5 * (points[0] + points[1]) * segment[:, None]).sum(axis=0) / lengths[k]
+    return lengths, centroids
+
+
+PROFILE_LEVELS = 160
+NECK_BASE_RISE = 1.15      # perimeter growth over NECK_RISE_WINDOW that marks the neck's base
+NECK_RISE_WINDOW = 1.0     # in neck radii (valley perimeter / 2π)
+MIN_VALLEY_DEPTH = 0.03    # of the largest perimeter: shallower dips are not a neck
+
+
+def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
+    """(head cut, neck cut) as (point, normal) planes, or (None, None) if no neck is found.
+
+    Profile P(s) of isocontour perimeters of the geodesic distance s from the head tip, up to
+    where the isocontours reach the forelimbs. The neck is the deepest valley of P (depth =
+    the smaller of the highest P before and after it, minus P there). Head cut: the level of the
+    highest P before the valley (the back of the skull). Neck base: the first level after the
+    valley where P grows by NECK_BASE_RISE within NECK_RISE_WINDOW (the flare into the chest),
+    taken at the start of that window. Each cut is the plane that best fits its isocontour.
+    """
+    tip_local = int(np.argmax(along[rest]))
+    sub = graph[rest][:, rest]
+    distance_local = dijkstra(sub, indices=tip_local)
+    distance = np.full(len(vertices), np.inf)
+    distance[rest] = distance_local
+    finite = np.isfinite(distance)
+    faces = faces[finite[faces].all(axis=1)]
+    near_forelimb = np.unique(graph[forelimb].indices)
+    near_forelimb = near_forelimb[finite[near_forelimb]]
+    span = float(distance[near_forelimb].min()) if len(near_forelimb) else float(distance[finite].max())
+    levels = np.linspace(0, span, PROFILE_LEVELS + 2)[1:-1]
+    field = np.where(finite, distance, np.inf)
+    perimeter, _ = isocontour_profile(vertices, faces, field, levels)
+    perimeter = np.convolve(perimeter, np.ones(3) / 3, mode="same")
+    top = perimeter.max()
+    if not top > 0:
+        return None, None
+    before = np.maximum.accumulate(perimeter)
+    after = np.maximum.accumulate(perimeter[::-1])[::-1]
+    depth = np.minimum(before, after) - perimeter
+    valley = int(np.argmax(depth))
+    if depth[valley] < MIN_VALLEY_DEPTH * top:
+        return None, None
+    head_level = int(np.argmax(perimeter[:valley + 1]))
+    step = levels[1] - levels[0]
+    window = max(1, int(round(NECK_RISE_WINDOW * perimeter[valley] / (2 * np.pi) / step)))
+    base_level = None
+    for k in range(valley + window, len(levels)):
+        if perimeter[k] > NECK_BASE_RISE * perimeter[k - window]:
+            base_level = k - window
+            break
+    if base_level is None:
+        return None, None
+    tip = rest[tip_local]
+    cuts = []
+    for level in (levels[head_level], levels[base_level]):
+        plane = _contour_plane(vertices, faces, field, level, vertices[tip])
+        if plane is None:
+            return None, None
+        cuts.append(plane)
+    return cuts[0], cuts[1]
+
+
+def _contour_plane(vertices, faces, field, level, towards):
+    """Best-fit plane (point, unit normal towards ``towards``) of the isocontour at ``level``."""
+    values = field[faces]
+    above = values > level
+    crossing = (above.sum(axis=1) == 1) | (above.sum(axis=1) == 2)
+    if crossing.sum() < 3:
+        return None
+    corners = vertices[faces[crossing]]
+    v = values[crossing]
+    points = []
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        crosses = (v[:, a] > level) != (v[:, b] > level)
+        t = (level - v[crosses, a]) / (v[crosses, b] - v[crosses, a])
+        points.append(corners[crosses, a] + t[:, None] * (corners[crosses, b] - corners[crosses, a]))
+    points = np.concatenate(points)
+    centre = points.mean(axis=0)
+    normal = np.linalg.svd(points - centre)[2][2]
+    if (towards - centre) @ normal < 0:
+        normal = -normal
+    return centre, normal
+
+

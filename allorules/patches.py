@@ -19,7 +19,7 @@ import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SegmentationError
-from .laplacian import lumped_mass
+from .laplacian import cotangent_laplacian, lumped_mass
 
 DEFAULT_PATCH_COUNT = 24
 KMEANS_RESTARTS = 4
@@ -57,8 +57,6 @@ def spectral_patches(vertices: np.ndarray, faces: np.ndarray, count: int = DEFAU
 
     Deterministic for a given mesh, ``count`` and ``seed``.
     """
-    from .basis import compute_basis  # late: keeps importing this module cheap
-
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     n = len(vertices)
@@ -76,11 +74,10 @@ def spectral_patches(vertices: np.ndarray, faces: np.ndarray, count: int = DEFAU
     mass = lumped_mass(vertices, faces)
     if count == 1:
         return np.zeros(n, dtype=np.int64)
-    modes = min(count + 1, n - 1)
-    basis = compute_basis(vertices, faces, modes=modes)
-    eigenvalues = basis.eigenvalues[1:]
+    eigenvalues, vectors = low_harmonics(vertices, faces, mass, min(count + 1, n - 1))
+    eigenvalues, vectors = eigenvalues[1:], vectors[:, 1:]
     # Commute-time embedding: h_i / sqrt(λ_i), i ≥ 1 (the constant h_0 carries no position).
-    embedding = basis.vectors[:, 1:] / np.sqrt(np.maximum(eigenvalues, 1e-12 * eigenvalues.max()))
+    embedding = vectors / np.sqrt(np.maximum(eigenvalues, 1e-12 * eigenvalues.max()))
     rng = np.random.default_rng(seed)
     clusters = _weighted_kmeans(embedding, mass, count, rng)
     patches = _make_connected(clusters, graph, mass)
@@ -94,6 +91,27 @@ def spectral_patches(vertices: np.ndarray, faces: np.ndarray, count: int = DEFAU
         patches[members[halves == 1]] = patches.max() + 1
         patches = _make_connected(patches, graph, mass)
     return _renumber(patches)
+
+
+def low_harmonics(vertices: np.ndarray, faces: np.ndarray, mass: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``count`` smallest eigenpairs of L h = λ D h (METHOD §2), for a few dozen modes.
+
+    A direct shift-invert Lanczos call: only a handful of modes are needed here, so the full
+    basis machinery (cache, banded solver for 1000 modes) is not worth its cost.
+    """
+    import scipy.linalg
+    import scipy.sparse.linalg
+
+    stiffness = cotangent_laplacian(vertices, faces)
+    if len(vertices) <= 1200:
+        return scipy.linalg.eigh(stiffness.toarray(), np.diag(mass), subset_by_index=[0, count - 1])
+    # Shift slightly below zero so that L − σD is non-singular (L is PSD with a constant null vector).
+    sigma = -1e-6 * float(stiffness.diagonal().max() / mass.max())
+    start = np.ones(len(vertices))  # fixed start vector: the same answer on every run
+    eigenvalues, vectors = scipy.sparse.linalg.eigsh(stiffness.tocsc(), k=count, M=sparse.diags(mass).tocsc(),
+                                                     sigma=sigma, which="LM", v0=start)
+    order = np.argsort(eigenvalues)
+    return eigenvalues[order], vectors[:, order]
 
 
 def _weighted_kmeans(points: np.ndarray, weights: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:

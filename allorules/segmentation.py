@@ -63,3 +63,38 @@ def map_regions(body: Body, regions: tuple[str, ...] = QUADRUPED_REGIONS) -> Bod
         lookup[index] = regions.index(target)
     labels = lookup[np.where(body.labels >= 0, body.labels, len(body.region_names))]
     return Body(body.vertices, body.faces, labels, tuple(regions), body.frame)
+
+
+def patch_body(body: Body, patches: np.ndarray) -> Body:
+    """The body with its patches as regions named ``patch0`` … (for labels files and pictures)."""
+    patches = np.asarray(patches, dtype=np.int64)
+    names = tuple(f"patch{i}" for i in range(int(patches.max()) + 1))
+    return Body(body.vertices, body.faces, patches, names, body.frame)
+
+
+def write_preview(body: Body, path, *, numbered: bool = False, title: str | None = None, views=None):
+    """A PNG of the body with one colour per region, from several views.
+
+    ``numbered`` prints each region's index on it (for patches: the ids a merge file uses), at
+    the region's vertex nearest to its area centroid.
+    """
+    from . import render
+    from .laplacian import lumped_mass
+
+    if body.labels is None:
+        raise SegmentationError("the body has no labels to draw; segment it first")
+    views = tuple(views) if views else render.VIEWS
+    colors = render.region_colors(body.labels, body.region_names)
+    annotations = []
+    if numbered:
+        mass = lumped_mass(body.vertices, body.faces)
+        for index in range(len(body.region_names)):
+            members = np.flatnonzero(body.labels == index)
+            if len(members) == 0:
+                continue
+            centre = np.average(body.vertices[members], axis=0, weights=mass[members] + 1e-300)
+            nearest = members[np.argmin(np.linalg.norm(body.vertices[members] - centre, axis=1))]
+            annotations.append((body.vertices[nearest], str(index)))
+    legend = None if numbered else render.region_legend(body.labels, body.region_names)
+    return render.render_views(body.vertices, body.faces, path=path, views=views, frame=body.frame,
+                               vertex_colors=colors, annotations=annotations or None, title=title, legend=legend)

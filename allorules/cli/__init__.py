@@ -22,6 +22,8 @@ COMMAND_MODULES = [
     "experiment",
     "rulesets",
     "plugins",
+    "segment",
+    "measure",
 ]
 
 log = logging.getLogger("allorules")

@@ -1,0 +1,120 @@
+"""``allorules measure MESH``: body mass, peak stress and every region quantity a ruleset uses.
+
+The regions come from ``--segmentation FILE`` (an allorules labels ``.json``, or a Princeton
+``.seg`` whose segment ids 0…5 are head, neck, chest, abdomen, forelimbs, hindlimbs), or from the
+automatic quadruped labeller when no file is given. Quantities are in the mesh's own units
+(mass = volume, density 1); only their ratios mean anything to the scaler.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from pathlib import Path
+
+from ..errors import AllorulesError, MeasurementError, SegmentationError
+from .segment import add_direction_arguments, load_body
+
+log = logging.getLogger("allorules")
+
+DEFAULT_RULESET = "quadruped"
+
+
+def register(subcommands: argparse._SubParsersAction) -> None:
+    from ..plugins import add_plugin_argument
+
+    parser = subcommands.add_parser(
+        "measure",
+        help="measure body mass, peak limb stress and the region quantities of a ruleset",
+        description="Prepare the mesh, label its regions (from --segmentation, or automatically) and print "
+        "body mass, peak stress and each rule's quantity of the ruleset.",
+    )
+    parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
+    parser.add_argument("--segmentation", metavar="FILE",
+                        help="labels file (.json from 'allorules segment' or 'generate') or Princeton .seg; "
+                        "automatic quadruped labelling when not given")
+    parser.add_argument("--ruleset", default=DEFAULT_RULESET, metavar="NAME",
+                        help=f"ruleset whose quantities to measure (default {DEFAULT_RULESET}); a name or a .yaml path")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add_direction_arguments(parser)
+    add_plugin_argument(parser)
+    parser.set_defaults(run=run)
+
+
+def segmented_body(arguments: argparse.Namespace):
+    """The prepared body with regions from the given file or the automatic labeller."""
+    from .. import segmentation
+
+    body = load_body(arguments.mesh)
+    if arguments.segmentation:
+        path = Path(arguments.segmentation)
+        if path.suffix.lower() == ".seg":
+            labelled = segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
+        else:
+            labelled = segmentation.read_labels(path, body)
+        labelled = segmentation.map_regions(labelled, _regions_with_extras(labelled.region_names))
+        source = str(path)
+    else:
+        labelled = segmentation.label_quadruped(body, up=arguments.up, forward=arguments.forward)
+        source = "automatic"
+    return labelled, source
+
+
+def _regions_with_extras(names):
+    """Keep the file's own regions, folding the known extras (tail, ears, …) into their neighbour."""
+    from ..segmentation import NEIGHBOUR_REGION
+
+    kept = tuple(name for name in names if name not in NEIGHBOUR_REGION)
+    return kept
+
+
+def run(arguments: argparse.Namespace) -> int:
+    from .. import measures
+    from ..plugins import registry_for
+    from ..rules import load_ruleset
+
+    registry = registry_for(arguments)
+    ruleset = load_ruleset(arguments.ruleset, registry)
+    body, source = segmented_body(arguments)
+    missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]
+    if missing:
+        raise SegmentationError(
+            f"the segmentation has no region {', '.join(sorted(set(missing)))} that ruleset {ruleset.name!r} "
+            f"needs (it has: {', '.join(body.region_names)})"
+        )
+    result = {
+        "mesh": str(arguments.mesh),
+        "segmentation": source,
+        "ruleset": ruleset.name,
+        "vertices": int(body.vertex_count),
+        "frame": None if body.frame is None else {"up": [float(x) for x in body.frame.up],
+                                                  "forward": [float(x) for x in body.frame.forward]},
+        "body_mass": _finite(measures.body_mass(body), "body mass"),
+        "peak_stress": _finite(measures.peak_stress(body), "peak stress"),
+        "rules": [],
+    }
+    for rule in ruleset.rules:
+        spec = registry.measure(rule.measure)
+        try:
+            value = _finite(spec.compute(body, rule.region), f"{rule.measure} of {rule.region or 'the body'}")
+        except AllorulesError as error:
+            raise MeasurementError(f"rule {rule.id!r}: {error}") from None
+        result["rules"].append({"id": rule.id, "region": rule.region, "measure": rule.measure,
+                                "exponent": rule.exponent, "value": value})
+    if arguments.json:
+        print(json.dumps(result))
+    else:
+        print(f"{arguments.mesh} ({source} segmentation, ruleset {ruleset.name})")
+        print(f"  body mass    {result['body_mass']:.6g}")
+        print(f"  peak stress  {result['peak_stress']:.6g}")
+        for item in result["rules"]:
+            print(f"  {item['id']:<20} {item['measure']} of {item['region'] or 'body'}: {item['value']:.6g}")
+    return 0
+
+
+def _finite(value: float, what: str) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise MeasurementError(f"{what} came out as {value}; the mesh or its segmentation cannot be measured")
+    return value
