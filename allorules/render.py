@@ -224,6 +224,21 @@ def shade(face_normals_camera: np.ndarray, base_rgba: np.ndarray) -> np.ndarray:
     return colors
 
 
+def _checked(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"vertices must be an (n, 3) array, got shape {vertices.shape}")
+    if not np.isfinite(vertices).all():
+        raise ValueError("cannot render vertices that are NaN or infinite")
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError(f"nothing to draw: faces must be a non-empty (m, 3) array, got shape {faces.shape}")
+    faces = faces.astype(np.int64)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ValueError("faces refer to vertices that do not exist")
+    return vertices, faces
+
+
 CREASE_ANGLE_DEGREES = 50.0   # faces meeting at a sharper angle than this keep a hard edge
 
 
@@ -234,8 +249,7 @@ def shading_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     surfaces look smooth, boxes and creases stay crisp, inconsistently oriented patches fall
     back to their flat normal. Very high-valence vertices (over 5 million corner pairs in all)
     fall back to flat shading to bound the cost."""
-    vertices = np.asarray(vertices, dtype=float)
-    faces = np.asarray(faces, dtype=np.int64)
+    vertices, faces = _checked(vertices, faces)
     corners = vertices[faces]
     flat = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])   # 2·area·n
     flat_length = np.linalg.norm(flat, axis=1)
@@ -308,10 +322,7 @@ def make_shot(
     turned away from the viewer are drawn first, then the faces towards it, each group back to
     front: on a closed mesh this is exact whatever the triangle sizes (plain depth sorting of
     large triangles can be wrong); open meshes still show their inside through holes."""
-    vertices = np.asarray(vertices, dtype=float)
-    faces = np.asarray(faces, dtype=np.int64)
-    if not np.isfinite(vertices).all():
-        raise ValueError("cannot render vertices that are NaN or infinite")
+    vertices, faces = _checked(vertices, faces)
     basis = np.stack([camera.right, camera.up, camera.toward_viewer], axis=1)  # world -> camera
     camera_vertices = vertices @ basis
     corners = camera_vertices[faces]

@@ -390,3 +390,30 @@ def test_dog_with_missing_material_library_exports_and_says_so(tmp_path: Path) -
     np.testing.assert_array_equal(back.visual.uv, source.visual.uv)
     assert output.read_text().count("usemtl") == path.read_text().count("usemtl")
     assert os.path.getsize(path) > 0  # input untouched
+
+
+def test_quads_and_relative_indices_are_kept_verbatim(tmp_path: Path) -> None:
+    text = "\n".join([
+        "v 0 0 0", "v 1 0 0", "v 1 1 0", "v 0 1 0", "v 0 0 1", "v 1 0 1", "v 1 1 1", "v 0 1 1",
+        "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1",
+        "vn 0 0 1", "vn 0 0 1", "vn 0 0 1", "vn 0 0 1", "vn 0 0 1", "vn 0 0 1",
+        "f 1/1/1 4/4/1 3/3/1 2/2/1",          # z = 0 side, outward -z
+        "f -4/1/-5 -3/2/-5 -2/3/-5 -1/4/-5",  # z = 1 side (relative indices), outward +z
+        "f 1/1/3 2/2/3 6/3/3 5/4/3",
+        "f 4/1/4 8/2/4 7/3/4 3/4/4",
+        "f 2/1/5 3/2/5 7/3/5 6/4/5",
+        "f 1/1/6 5/2/6 8/3/6 4/4/6",
+    ]) + "\n"
+    path = tmp_path / "quads.obj"
+    path.write_text(text)
+    source = _load(path)
+    output = tmp_path / "quads_tall.obj"
+    save_mesh(output, source.vertices * np.array([1.0, 3.0, 1.0]), source.faces, source=source, input_path=path)
+    lines = output.read_text().splitlines()
+    assert [line for line in lines if line.startswith("f ")] == [line for line in text.splitlines() if line.startswith("f ")]
+    normals = np.array([[float(x) for x in line.split()[1:]] for line in lines if line.startswith("vn ")])
+    expected = [[0, 0, -1], [0, 0, 1], [0, -1, 0], [0, 1, 0], [1, 0, 0], [-1, 0, 0]]
+    np.testing.assert_allclose(normals, expected, atol=1e-9)
+    back = _load(output)
+    np.testing.assert_array_equal(back.faces, source.faces)
+    np.testing.assert_allclose(back.vertices, source.vertices * np.array([1.0, 3.0, 1.0]))

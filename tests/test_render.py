@@ -390,3 +390,11 @@ def test_html_report_rejects_unknown_table_shapes(tmp_path: Path) -> None:
     with pytest.raises(TypeError, match="table 1"):
         write_html_report(tmp_path / "r.html", title="t", summary={}, tables=[42])
     assert not (tmp_path / "r.html").exists()
+
+
+def test_empty_or_broken_faces_are_refused(tmp_path: Path) -> None:
+    box = _long_box()
+    with pytest.raises(ValueError, match="nothing to draw"):
+        render_views(box.vertices, np.zeros((0, 3), dtype=int), path=tmp_path / "empty.png")
+    with pytest.raises(ValueError, match="do not exist"):
+        render_views(box.vertices, box.faces + 50, path=tmp_path / "broken.png")
