@@ -75,8 +75,8 @@ _FILL_LIGHT /= np.linalg.norm(_FILL_LIGHT)
 # Colours
 
 
-def region_color(name: str, index: int | None = None) -> tuple[float, float, float, float]:
-    """The fixed RGBA colour of a region name (``index`` is unused; kept for patch numbering)."""
+def region_color(name: str) -> tuple[float, float, float, float]:
+    """The fixed RGBA colour of a region name (see ``REGION_PALETTE``; other names: stable hash)."""
     from matplotlib.colors import to_rgba
 
     if name in REGION_PALETTE:
