@@ -194,7 +194,11 @@ def _read_document(path: Path) -> _Document:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as error:
         raise RulesetError(f"{path} is not UTF-8 text (byte {error.start}); save it as UTF-8") from None
-    loader = _Loader(text)
+    try:
+        loader = _Loader(text)
+    except yaml.YAMLError as error:   # characters YAML does not allow (control characters, ...)
+        raise RulesetError(f"not readable as YAML: {' '.join(str(error).split())}; remove that character",
+                           SourceLocation(path, text.count(chr(10), 0, getattr(error, "position", 0)) + 1)) from None
     try:
         node = loader.get_single_node()
         if node is None:
@@ -653,8 +657,10 @@ def _build(merged: _Merged, registry: "PluginRegistry") -> Ruleset:
         elif region not in regions:
             close = difflib.get_close_matches(region, regions, n=1)
             hint = f"did you mean {close[0]!r}? " if close else ""
+            regions_at = merged.where.get("regions")
+            set_at = f" (regions set at {regions_at})" if regions_at and regions_at.path != location.path else ""
             problems.append(RulesetError(f"{what}: unknown region {region!r}; {hint}the ruleset's regions are "
-                                         f"{regions_text} (add it to 'regions' if it is new)", location))
+                                         f"{regions_text}{set_at} (add it to 'regions' if it is new)", location))
 
     def check_measure(name: str, what: str, location: SourceLocation):
         if name in measures:
