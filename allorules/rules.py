@@ -750,6 +750,7 @@ def _build(merged: _Merged, registry: "PluginRegistry") -> Ruleset:
         problems.append(RulesetError(f"unknown segmenter {segmenter!r}; known: {', '.join(sorted(segmenters))}{failed_note}",
                                      merged.where.get("segmenter", whole)))
     if problems:
+        problems.sort(key=lambda p: (str(p.location.path), p.location.line or 0) if p.location else ("", 0))
         raise RulesetProblems(problems)
     return Ruleset(
         name=merged.name,
