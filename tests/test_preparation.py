@@ -1,0 +1,152 @@
+"""Mesh preparation repairs generated broken inputs and names every repair."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from allorules.errors import MeshError
+from allorules.preparation import cap_holes, count_boundary_loops, load_mesh, prepare_mesh, signed_volume
+
+
+def sphere(subdivisions: int = 3, radius: float = 1.0) -> trimesh.Trimesh:
+    return trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+
+
+def test_clean_mesh_needs_no_repair():
+    prepared = prepare_mesh(sphere())
+    assert prepared.repairs == []
+    assert np.array_equal(prepared.faces, sphere().faces)
+
+
+def test_split_seams_are_merged_and_reported():
+    mesh = sphere()
+    # Give every face its own three vertices, as a UV-seamed export would.
+    split = trimesh.Trimesh(mesh.vertices[mesh.faces].reshape(-1, 3), np.arange(3 * len(mesh.faces)).reshape(-1, 3), process=False)
+    prepared = prepare_mesh(split)
+    assert len(prepared.vertices) == len(mesh.vertices)
+    assert any("merged" in repair and "seam" in repair for repair in prepared.repairs)
+    # Every input vertex maps onto the body vertex at the same place.
+    assert np.allclose(prepared.vertices[prepared.source_vertex_index], split.vertices)
+
+
+def test_flipped_faces_are_reoriented_outward():
+    mesh = sphere()
+    faces = mesh.faces.copy()
+    rng = np.random.default_rng(1)
+    flip = rng.random(len(faces)) < 0.3
+    faces[flip] = faces[flip][:, ::-1]
+    prepared = prepare_mesh(trimesh.Trimesh(mesh.vertices, faces, process=False))
+    assert any("flipped" in repair for repair in prepared.repairs)
+    repaired = trimesh.Trimesh(prepared.vertices, prepared.faces, process=False)
+    assert repaired.is_winding_consistent
+    assert signed_volume(prepared.vertices, prepared.faces) > 0
+
+
+def test_inside_out_mesh_is_turned_outward():
+    mesh = sphere()
+    prepared = prepare_mesh(trimesh.Trimesh(mesh.vertices, mesh.faces[:, ::-1], process=False))
+    assert any("outward" in repair for repair in prepared.repairs)
+    assert signed_volume(prepared.vertices, prepared.faces) > 0
+
+
+def test_holes_are_reported_and_capped_for_volume_only():
+    mesh = sphere(4)
+    top = mesh.vertices[mesh.faces].mean(axis=1)[:, 2] > 0.95
+    bottom = mesh.vertices[mesh.faces].mean(axis=1)[:, 2] < -0.95
+    holed = trimesh.Trimesh(mesh.vertices, mesh.faces[~(top | bottom)], process=False)
+    prepared = prepare_mesh(holed)
+    assert prepared.boundary_loops == 2
+    assert any("2 holes" in repair for repair in prepared.repairs)
+    assert count_boundary_loops(prepared.faces) == 2          # the output keeps its holes
+    capped_vertices, capped_faces = cap_holes(prepared.vertices, prepared.faces)
+    assert count_boundary_loops(capped_faces) == 0
+    assert signed_volume(capped_vertices, capped_faces) == pytest.approx(4 / 3 * np.pi, rel=0.02)
+
+
+def test_stray_parts_are_carried_along_with_the_body():
+    body = sphere(3)
+    eye = sphere(1, radius=0.05)
+    eye.apply_translation([0.0, 0.0, 1.2])
+    both = trimesh.util.concatenate([body, eye])
+    prepared = prepare_mesh(both)
+    assert len(prepared.vertices) == len(body.vertices)
+    assert any("largest of 2 parts" in repair for repair in prepared.repairs)
+    moved = prepared.vertices * 2.0
+    positions = prepared.source_positions(moved)
+    eye_vertices = np.arange(len(body.vertices), len(both.vertices))
+    # The eye moved rigidly with its nearest body vertex: its shape is unchanged.
+    assert np.allclose(np.ptp(positions[eye_vertices], axis=0), np.ptp(eye.vertices, axis=0))
+    assert positions[eye_vertices, 2].mean() > 2.0
+
+
+def test_duplicate_and_degenerate_faces_are_dropped():
+    mesh = sphere()
+    faces = np.vstack([mesh.faces, mesh.faces[:5], [[0, 0, 1]]])
+    prepared = prepare_mesh(trimesh.Trimesh(mesh.vertices, faces, process=False))
+    assert len(prepared.faces) == len(mesh.faces)
+    assert any("degenerate" in repair for repair in prepared.repairs)
+    assert any("duplicate faces" in repair for repair in prepared.repairs)
+
+
+def test_non_manifold_fin_is_removed():
+    mesh = sphere()
+    a, b = mesh.faces[0][:2]
+    extra = len(mesh.vertices)
+    vertices = np.vstack([mesh.vertices, [[3.0, 3.0, 3.0]]])
+    faces = np.vstack([mesh.faces, [[a, b, extra]]])
+    prepared = prepare_mesh(trimesh.Trimesh(vertices, faces, process=False))
+    assert any("non-manifold" in repair for repair in prepared.repairs)
+    assert trimesh.Trimesh(prepared.vertices, prepared.faces, process=False).is_watertight
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, message",
+    [
+        (np.zeros((0, 3)), np.zeros((0, 3), int), "empty"),
+        (np.random.default_rng(0).random((200, 3)), np.zeros((0, 3), int), "no faces"),
+    ],
+)
+def test_unusable_meshes_are_refused_clearly(vertices, faces, message):
+    with pytest.raises(MeshError, match=message):
+        prepare_mesh(trimesh.Trimesh(vertices, faces, process=False))
+
+
+def test_nan_coordinates_are_refused():
+    mesh = sphere()
+    vertices = mesh.vertices.copy()
+    vertices[3] = np.nan
+    with pytest.raises(MeshError, match="NaN or infinite"):
+        prepare_mesh(trimesh.Trimesh(vertices, mesh.faces, process=False))
+
+
+def test_too_small_body_is_refused():
+    with pytest.raises(MeshError, match="only 12 vertices"):
+        prepare_mesh(trimesh.creation.icosphere(subdivisions=0))
+
+
+def test_unreadable_and_unsupported_files(tmp_path):
+    with pytest.raises(MeshError, match="no such file"):
+        load_mesh(tmp_path / "missing.obj")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(MeshError, match="unsupported format"):
+        load_mesh(tmp_path / "notes.txt")
+    (tmp_path / "broken.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
+    with pytest.raises(MeshError, match="broken.ply"):
+        prepare_mesh(tmp_path / "broken.ply")
+
+
+def test_preparation_is_independent_of_units():
+    mesh = sphere()
+    for factor in (1e-3, 1e3):
+        scaled = trimesh.Trimesh(mesh.vertices * factor, mesh.faces, process=False)
+        assert prepare_mesh(scaled).repairs == []
+
+
+@pytest.mark.shared_meshes
+@pytest.mark.parametrize("name", ["horse", "lion", "wolf", "elephant", "camel", "dog-lowpoly"])
+def test_real_meshes_prepare(shared_meshes, name):
+    prepared = prepare_mesh(shared_meshes / f"{name}.obj")
+    capped = cap_holes(prepared.vertices, prepared.faces)
+    assert signed_volume(*capped) > 0
+    assert np.all(np.isfinite(prepared.vertices))
