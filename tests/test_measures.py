@@ -366,3 +366,41 @@ def test_a_short_wide_tube_between_two_openings_is_measured_along_its_length():
     body = Body(vertices, faces, np.r_[np.zeros(len(vertices) - 1, dtype=int), 1], ("neck", "other"))
     assert region_length(body, "neck") == pytest.approx(2.0, rel=1e-6)
     assert region_girth(body, "neck") == pytest.approx(2 * 64 * 2.0 * np.sin(np.pi / 64), rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# The generated quadruped knows its true measurements
+
+
+@pytest.fixture(scope="module", params=["horse", "elephant", "giraffe"])
+def animal(request):
+    quadruped = pytest.importorskip("allorules.quadruped")
+    return quadruped.generate_quadruped(request.param, vertices=8000)
+
+
+@pytest.mark.slow
+def test_quadruped_measures_match_its_truth(animal):
+    body, truth = animal.body(), animal.truth
+    assert body_mass(body) == pytest.approx(truth.body_volume, rel=1e-9)
+    for region in body.region_names:
+        assert region_mass(body, region) == pytest.approx(truth.region_volume[region], rel=0.05), region
+    for region in ("forelimbs", "hindlimbs"):
+        limbs = limb_sections(body, region)
+        assert len(limbs) == 2
+        assert region_length(body, region) == pytest.approx(truth.leg_length[region], rel=0.05), region
+        radius = np.mean([np.sqrt(limb.section_at(0.5).area / np.pi) for limb in limbs])
+        assert radius == pytest.approx(truth.leg_radius[region], rel=0.05), region
+    assert region_girth(body, "chest") == pytest.approx(truth.chest_girth, rel=0.05)
+
+
+@pytest.mark.slow
+def test_quadruped_peak_stress_is_defined_and_scales_isometrically(animal):
+    body = animal.body()
+    chosen = load_bearing_section(body)
+    assert chosen.region in ("forelimbs", "hindlimbs")
+    assert measures.JUNCTION_SKIP <= chosen.section.fraction <= 1 - measures.TIP_SKIP
+    sigma = peak_stress(body)
+    assert np.isfinite(sigma) and sigma > 0
+    for scale in (2.0, 0.01):
+        scaled = Body(body.vertices * scale, body.faces, body.labels, body.region_names, body.frame)
+        assert peak_stress(scaled) == pytest.approx(scale * sigma, rel=1e-6)
