@@ -462,7 +462,7 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     levels = np.linspace(0, span, PROFILE_LEVELS + 2)[1:-1]
     field = np.where(finite, distance, np.inf)
     perimeter, _ = isocontour_profile(vertices, faces, field, levels)
-    perimeter = np.convolve(perimeter, np.ones(3) / 3, mode="same")
+    perimeter = np.convolve(perimeter, np.ones(5) / 5, mode="same")
     top = perimeter.max()
     if not top > 0:
         return None, None
@@ -476,9 +476,13 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     step = levels[1] - levels[0]
     window = max(1, int(round(NECK_RISE_WINDOW * perimeter[valley] / (2 * np.pi) / step)))
     base_level = None
-    for k in range(valley + window, len(levels)):
-        if perimeter[k] > NECK_BASE_RISE * perimeter[k - window]:
-            base_level = k - window
+    for sustained in (True, False):  # prefer a flare that keeps growing (the torso, not a bump)
+        for k in range(valley + window, len(levels) - (window if sustained else 0)):
+            rise = perimeter[k] > NECK_BASE_RISE * perimeter[k - window]
+            if rise and (not sustained or perimeter[k + window] > NECK_BASE_RISE * perimeter[k]):
+                base_level = k - window
+                break
+        if base_level is not None:
             break
     if base_level is None:
         return None, None
