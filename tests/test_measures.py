@@ -404,3 +404,23 @@ def test_quadruped_peak_stress_is_defined_and_scales_isometrically(animal):
     for scale in (2.0, 0.01):
         scaled = Body(body.vertices * scale, body.faces, body.labels, body.region_names, body.frame)
         assert peak_stress(scaled) == pytest.approx(scale * sigma, rel=1e-6)
+
+
+@pytest.mark.slow
+@pytest.mark.shared_meshes
+def test_real_horse_labelled_automatically_is_measurable(shared_meshes):
+    segmentation = pytest.importorskip("allorules.segmentation")
+    preparation = pytest.importorskip("allorules.preparation")
+    prepared = preparation.prepare_mesh(shared_meshes / "horse.obj")
+    body = segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    mass = body_mass(body)
+    assert np.isfinite(mass) and mass > 0
+    for region in ("forelimbs", "hindlimbs"):
+        limbs = limb_sections(body, region)
+        assert len(limbs) == 2
+        assert all(len(limb.sections) >= 10 for limb in limbs)
+        # the two legs of a pair are about equally long
+        assert limbs[0].length == pytest.approx(limbs[1].length, rel=0.1)
+        assert region_mass(body, region) < 0.2 * mass
+    sigma = peak_stress(body)
+    assert np.isfinite(sigma) and sigma > 0
