@@ -45,9 +45,11 @@ MAXIMUM_MASS_RATIO = 1000.0
 MINIMUM_MASS_RATIO = 0.001
 STEP_UP = 1.1
 STEP_DOWN = 0.9
-# The bracket search for α widens from ALPHA_START by doubling up to ALPHA_LIMIT either way.
-ALPHA_START = 0.005
+# The bracket search for α widens by doubling from ALPHA_LIMIT / 256 up to ALPHA_LIMIT either way.
 ALPHA_LIMIT = 1.0
+ALPHA_DOUBLINGS = 8
+# A step whose solution folds more than this share of the faces over is refused, not returned.
+MAXIMUM_FLIPPED_SHARE = 0.001
 # Solve each step's mass ratio to this relative accuracy.
 RATIO_TOLERANCE = 1e-7
 
@@ -270,28 +272,27 @@ def _solve_step(
     def residual(alpha: float) -> float:
         return math.log(trial(alpha).mass_ratio / target)
 
-    # Widening search for a sign change of log(ρ(α)/r) on each side of α = 0 (ρ(0) = 1).
+    # Widening search for a sign change of log(ρ(α)/r), both sides of α = 0 in turn (ρ(0) = 1), so
+    # that the root nearest to isometric scaling is the one found.
     zero = residual(0.0)
     bracket = None
     failures = []
-    for direction in (1.0, -1.0):
-        previous_alpha, previous_value = 0.0, zero
-        alpha = ALPHA_START
-        while alpha <= alpha_limit * (1 + 1e-12):
+    last = {1.0: (0.0, zero), -1.0: (0.0, zero)}
+    alpha = alpha_limit / 2 ** ALPHA_DOUBLINGS
+    while bracket is None and last and alpha <= alpha_limit * (1 + 1e-12):
+        for direction in [d for d in (1.0, -1.0) if d in last]:
+            previous_alpha, previous_value = last[direction]
             try:
                 value = residual(direction * alpha)
             except AllorulesError as error:
                 failures.append(f"α = {direction * alpha:g}: {error}")
-                break
+                del last[direction]
+                continue
             if np.sign(value) != np.sign(previous_value):
                 bracket = sorted([(previous_alpha, previous_value), (direction * alpha, value)])
                 break
-            if abs(value) > abs(previous_value) * 1.5 and abs(previous_alpha) > 0:   # moving away: wrong side
-                break
-            previous_alpha, previous_value = direction * alpha, value
-            alpha *= 2.0
-        if bracket is not None:
-            break
+            last[direction] = (direction * alpha, value)
+        alpha *= 2.0
     if bracket is None:
         closest = min(trials, key=lambda t: abs(math.log(t.mass_ratio / target)))
         searched = f"[{-alpha_limit:g}, {alpha_limit:g}]"
@@ -310,6 +311,13 @@ def _solve_step(
                            closest=solution)
     new_vertices = apply_to_mesh(basis, vertices, global_allometric(coefficients, basis.eigenvalues, alpha, solution.scale),
                                  solution.scale, coefficients=coefficients)
+    flipped = count_flipped_faces(vertices, new_vertices, body.faces)
+    if flipped > MAXIMUM_FLIPPED_SHARE * len(body.faces):
+        raise ScalingError(
+            f"the only α found ({alpha:.4g}, s = {solution.scale:.4g}) folds {flipped} of {len(body.faces)} faces over; "
+            "refusing a broken mesh — use more harmonic modes (--modes) or a smaller ratio",
+            closest=solution,
+        )
     return new_vertices, solution, len(trials)
 
 
