@@ -1,0 +1,372 @@
+"""Biology-aware scaling runs (paper §3.2–3.3, METHOD §5–6): local power laws and ruleset runs.
+
+Owns :func:`scale_with_ruleset` (a whole run from a mass ratio R to a mesh, in steps),
+:func:`scale_region` (the local power law of Eq. 5–7 on one region, and the paper's arithmetic
+variant for comparison) and :func:`seam_strain` (how much a region's boundary tears).
+
+A run (METHOD §6):
+
+* R is split into n equal steps r = R^(1/n) no larger than the ruleset's step ratios
+  (:func:`allorules.global_scaling.step_ratios`, 1.1 / 0.9 by default).
+* Each step recomputes the harmonic basis on the step's start mesh (warm-started from the previous
+  basis), measures every target on that mesh (q* = q_0 · r^e) and solves Eq. 11 for
+  (s, α_0, α_j) (:func:`allorules.solver.solve_step`). Labels travel with the vertices (the
+  connectivity never changes).
+* Peak stress is measured at one material section chosen on the input body and followed through
+  every step (:class:`allorules.global_scaling.StressGauge`), as in global scaling.
+* Success is measured on the whole run, on fresh measurements of the output against the input:
+  achieved exponent e' = log(q_final / q_initial) / log R per rule, the body-mass ratio, and each
+  constraint's residuals with r = R. The run is ``converged`` when every |e' − e| ≤
+  ``EXPONENT_TOLERANCE`` (0.02), the mass is within ``MASS_TOLERANCE`` (1 %) and every constraint
+  residual within ``CONSTRAINT_TOLERANCE`` (2 %; for the limb-stress constraint: stress within 2 %).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .basis import HarmonicBasis, compute_basis, transform
+from .body import Body
+from .errors import AllorulesError, BasisError, ScalingError, SegmentationError
+from .global_scaling import StressGauge, check_mass_ratio, count_flipped_faces, step_ratios
+from .scaling import (
+    apply_to_mesh,
+    arithmetic_region_scaling,
+    dimensionless,
+    edited_coefficients,
+    local_power_law,
+    relative_eigenvalues,
+)
+from .solver import cached_measure, energy_terms, solve_step
+from .specs import ConstraintContext
+
+log = logging.getLogger("allorules")
+
+EXPONENT_TOLERANCE = 0.02
+MASS_TOLERANCE = 0.01
+CONSTRAINT_TOLERANCE = 0.02
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+@dataclass
+class RulesetStep:
+    """One step: what the solver chose and what the step did (fresh measurements of its output)."""
+
+    target_mass_ratio: float
+    scale: float
+    alpha0: float
+    alphas: dict[str, float]
+    residuals: dict[str, float]      # relative residual of every term at the solver's optimum
+    energy: float
+    evaluations: int
+    status: str
+    mass_ratio: float                # M_out / M_in of this step
+    stress_ratio: float | None
+    flipped_faces: int
+    modes: int
+
+    def as_dict(self) -> dict:
+        return {
+            "target_mass_ratio": float(self.target_mass_ratio),
+            "scale": float(self.scale),
+            "alpha0": float(self.alpha0),
+            "alphas": {key: float(value) for key, value in self.alphas.items()},
+            "residuals": {key: float(value) for key, value in self.residuals.items()},
+            "energy": float(self.energy),
+            "evaluations": int(self.evaluations),
+            "status": self.status,
+            "mass_ratio": float(self.mass_ratio),
+            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
+            "flipped_faces": int(self.flipped_faces),
+            "modes": int(self.modes),
+        }
+
+
+@dataclass
+class RuleOutcome:
+    """A rule over the whole run: target exponent against achieved e' = log(q_f/q_0)/log R."""
+
+    id: str
+    region: str | None
+    measure: str
+    exponent: float
+    initial: float
+    final: float
+    achieved_exponent: float
+
+    @property
+    def error(self) -> float:
+        return self.achieved_exponent - self.exponent
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "region": self.region, "measure": self.measure, "exponent": float(self.exponent),
+                "achieved_exponent": float(self.achieved_exponent), "error": float(self.error),
+                "initial": float(self.initial), "final": float(self.final)}
+
+
+@dataclass
+class BiologyScalingResult:
+    """A ruleset run. Ratios are final/initial, measured afresh on the output and the input."""
+
+    body: Body
+    ruleset: str
+    target_mass_ratio: float
+    steps: list[RulesetStep] = field(default_factory=list)
+    rules: list[RuleOutcome] = field(default_factory=list)
+    constraints: dict[str, float] = field(default_factory=dict)   # whole-run residuals
+    mass_ratio: float = 1.0
+    stress_ratio: float | None = None
+    flipped_faces: int = 0
+    converged: bool = False
+    messages: list[str] = field(default_factory=list)
+    section: dict | None = None
+
+    def as_dict(self) -> dict:
+        return {
+            "mode": "ruleset",
+            "ruleset": self.ruleset,
+            "target_mass_ratio": float(self.target_mass_ratio),
+            "mass_ratio": float(self.mass_ratio),
+            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
+            "steps": len(self.steps),
+            "converged": bool(self.converged),
+            "rules": [rule.as_dict() for rule in self.rules],
+            "constraints": {key: float(value) for key, value in self.constraints.items()},
+            "step_details": [step.as_dict() for step in self.steps],
+            "flipped_faces": int(self.flipped_faces),
+            "faces": int(len(self.body.faces)),
+            "messages": list(self.messages),
+            "section": self.section,
+            "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE},
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _basis_for(body: Body, modes: int | None, warm_start: HarmonicBasis | None, use_cache: bool) -> HarmonicBasis:
+    basis = compute_basis(body.vertices, body.faces, modes, use_cache=use_cache, warm_start=warm_start)
+    try:
+        relative_eigenvalues(basis.eigenvalues)
+    except ValueError as error:
+        raise BasisError(f"cannot scale this mesh: {error}") from None
+    return basis
+
+
+def _check_regions(body: Body, ruleset) -> None:
+    needed = set(ruleset.regions) | {rule.region for rule in ruleset.rules if rule.region}
+    missing = sorted(region for region in needed if not body.has_region(region) or body.labels is None
+                     or not body.region_mask(region).any())
+    if missing:
+        raise SegmentationError(
+            f"ruleset {ruleset.name!r} needs region(s) {', '.join(missing)} but the body has "
+            f"{', '.join(body.region_names) or 'no labels'}; segment it (allorules segment) or give --segmentation FILE"
+        )
+
+
+def _stress_gauge(body: Body, registry, section) -> StressGauge | None:
+    """The frozen load-bearing section, when the registry's ``stress`` is the built-in one and the
+    body has limbs; otherwise stress is measured by the registered measure as it is."""
+    from . import builtin
+
+    spec = registry.measures().get("stress")
+    if spec is None or spec.compute is not builtin._stress:
+        return None
+    try:
+        return StressGauge.choose(body, override=section)
+    except AllorulesError as error:
+        log.debug("no stress gauge: %s", error)
+        return None
+
+
+def _fresh(body: Body) -> Body:
+    """The same body with an empty cache: measured from scratch, as a user measuring the file would."""
+    return body.with_vertices(body.vertices.copy())
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+
+
+def scale_with_ruleset(
+    body: Body,
+    ruleset,
+    mass_ratio: float,
+    *,
+    registry=None,
+    modes: int | None = None,
+    section=None,
+    use_cache: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+) -> BiologyScalingResult:
+    """Scale a labelled ``body`` by the mass ratio R following ``ruleset`` (METHOD §6).
+
+    ``registry``: the plugin registry the ruleset was loaded with (default: built-ins and entry
+    points). ``modes``: basis size (default 1000). ``section``: a
+    :class:`allorules.measures.SectionChoice` overriding the load-bearing section. Returns a
+    result whose ``converged`` says whether every target was met within the documented
+    tolerances; ``messages`` says what was missed. Raises :class:`ScalingError` only when a step
+    cannot be solved at all (``closest`` = the result so far).
+    """
+    from .plugins import registry_for
+
+    registry = registry if registry is not None else registry_for(None)
+    target = check_mass_ratio(mass_ratio)
+    _check_regions(body, ruleset)
+    ratios = step_ratios(target, ruleset.solver.step_ratio_up, ruleset.solver.step_ratio_down)
+    initial = _fresh(body)
+    gauge = _stress_gauge(initial, registry, section)
+    measure = cached_measure(registry, {"stress": gauge.stress} if gauge else None)
+    result = BiologyScalingResult(body=initial, ruleset=ruleset.name, target_mass_ratio=target,
+                                  section=gauge.describe() if gauge else None)
+
+    current, basis, jacobian = initial, None, None
+    for index, ratio in enumerate(ratios):
+        basis = _basis_for(current, modes, basis, use_cache)
+        try:
+            solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian)
+        except ScalingError as error:
+            result.body = current
+            _finish(result, initial, ruleset, registry, measure, gauge)
+            result.converged = False
+            message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
+            result.messages.append(message)
+            raise ScalingError(message, closest=result) from None
+        jacobian = solution.jacobian
+        following = _fresh(solution.body)
+        mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
+        mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
+        stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None
+        result.steps.append(RulesetStep(
+            target_mass_ratio=ratio, scale=solution.scale, alpha0=solution.alpha0, alphas=solution.alphas,
+            residuals=solution.residuals, energy=solution.energy, evaluations=solution.evaluations,
+            status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
+            flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
+        ))
+        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
+                  solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
+        current = following
+        if progress is not None:
+            progress(index + 1, len(ratios))
+    result.body = current
+    _finish(result, initial, ruleset, registry, measure, gauge)
+    return result
+
+
+def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:
+    """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
+    final = _fresh(result.body)
+    if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
+        raise ScalingError("the scaled mesh has non-finite vertices; nothing was written")
+    ratio = result.target_mass_ratio
+    result.flipped_faces = count_flipped_faces(initial.vertices, final.vertices, initial.faces)
+    mass_term = energy_terms(ruleset)[0]
+    result.mass_ratio = measure(mass_term.measure, final, mass_term.region) / measure(mass_term.measure, initial, mass_term.region)
+    result.stress_ratio = gauge.stress(final) / gauge.stress(initial) if gauge else None
+    result.rules = []
+    messages = []
+    log_ratio = math.log(ratio) if ratio != 1.0 else None
+    for rule in ruleset.rules:
+        before, after = measure(rule.measure, initial, rule.region), measure(rule.measure, final, rule.region)
+        achieved = math.log(after / before) / log_ratio if log_ratio else float(rule.exponent)
+        outcome = RuleOutcome(rule.id, rule.region, rule.measure, float(rule.exponent), before, after, achieved)
+        result.rules.append(outcome)
+        if abs(outcome.error) > EXPONENT_TOLERANCE:
+            messages.append(f"rule {rule.id!r} reached exponent {achieved:.3f}, target {rule.exponent:.3f}")
+    if abs(result.mass_ratio / ratio - 1.0) > MASS_TOLERANCE:
+        messages.append(f"mass ratio {result.mass_ratio:.4f}, target {ratio:.4f}")
+    context = ConstraintContext(initial, final, ratio, measure)
+    result.constraints = {}
+    for use in ruleset.constraints:
+        spec = registry.constraint(use.name)
+        values = spec.residuals(context, spec.complete_parameters(use.parameters))
+        for name, residual in values.items():
+            key = use.name if len(values) == 1 else f"{use.name}:{name}"
+            result.constraints[key] = float(residual)
+            if not abs(residual) <= CONSTRAINT_TOLERANCE:
+                messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
+    result.converged = not messages
+    result.messages.extend(messages)
+    if messages:
+        result.messages.append(
+            f"not converged: {len(messages)} target(s) missed beyond the tolerances (exponent ±{EXPONENT_TOLERANCE}, "
+            f"mass ±{100 * MASS_TOLERANCE:g}%, constraints ±{100 * CONSTRAINT_TOLERANCE:g}%)")
+
+
+# ---------------------------------------------------------------------------------------------
+# Local scaling (Eq. 5–7) and the arithmetic comparison
+
+
+def region_coefficients(basis: HarmonicBasis, body: Body, region: str) -> np.ndarray:
+    """x̃_seg = Hᵀ D (I_seg ⊙ x) (paper Eq. 5), x taken about the body's area-weighted centroid so
+    that the result does not depend on where the mesh sits (see :mod:`allorules.solver`)."""
+    centre = (basis.mass @ body.vertices) / basis.mass.sum()
+    mask = body.region_mask(region).astype(float)
+    return transform(basis, (body.vertices - centre) * mask[:, None])
+
+
+def scale_region(
+    body: Body,
+    region: str,
+    alpha: float,
+    *,
+    modes: int | None = None,
+    basis: HarmonicBasis | None = None,
+    arithmetic_factor: float | None = None,
+    use_cache: bool = True,
+) -> Body:
+    """Local allometric scaling of one region (paper Eq. 5–7, dimensionless per METHOD §5).
+
+    u'_i = sgn(u_i)|u_i|^(1 + α·G(u_i, u_seg,i)); α > 0 shrinks what the region shares with the
+    body, α < 0 grows it, smoothly, without a seam. ``arithmetic_factor`` = f instead applies the
+    paper's bad example x̃' = x̃ + (f − 1)·x̃_seg (the region's vertices scaled by f about the
+    body's centroid): for comparison only, it tears the region's boundary open.
+    """
+    if not body.has_region(region) or body.labels is None or not body.region_mask(region).any():
+        raise SegmentationError(f"body has no region {region!r} (regions: {', '.join(body.region_names) or 'none'}); "
+                                "label it first (allorules segment) or give --segmentation FILE")
+    if not math.isfinite(alpha):
+        raise ScalingError(f"alpha must be a finite number, got {alpha}")
+    basis = basis or _basis_for(body, modes, None, use_cache)
+    coefficients = transform(basis, body.vertices)
+    seg = region_coefficients(basis, body, region)
+    if arithmetic_factor is not None:
+        if not (math.isfinite(arithmetic_factor) and arithmetic_factor > 0):
+            raise ScalingError(f"the arithmetic factor must be a positive number, got {arithmetic_factor}")
+        new = arithmetic_region_scaling(coefficients, seg, arithmetic_factor)
+    else:
+        u, c = dimensionless(coefficients)
+        try:
+            u_new = local_power_law(u, seg / c, float(alpha))
+        except ValueError as error:
+            raise ScalingError(f"alpha {alpha:g} is too large for region {region!r}: {error}") from None
+        new = edited_coefficients(coefficients, u, u_new, c)
+    return body.with_vertices(apply_to_mesh(basis, body.vertices, new, 1.0, coefficients=coefficients))
+
+
+def seam_strain(before: np.ndarray, after: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """How an edit stretches edges across a region's boundary compared with elsewhere.
+
+    Edge strain = |ℓ'/ℓ − 1|. Returns the largest strain of edges joining a region vertex to a
+    non-region vertex (``boundary``), the 99th percentile of strain over all other edges
+    (``elsewhere``) and their ratio (``seam``): about 1 or below for a seamless edit, large when the
+    boundary tears.
+    """
+    faces = np.asarray(faces)
+    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    length_before = np.linalg.norm(before[edges[:, 0]] - before[edges[:, 1]], axis=1)
+    length_after = np.linalg.norm(after[edges[:, 0]] - after[edges[:, 1]], axis=1)
+    strain = np.abs(length_after / np.maximum(length_before, np.finfo(float).tiny) - 1.0)
+    mask = np.asarray(mask, dtype=bool)
+    crossing = mask[edges[:, 0]] != mask[edges[:, 1]]
+    boundary = float(strain[crossing].max()) if crossing.any() else 0.0
+    elsewhere = float(np.percentile(strain[~crossing], 99)) if (~crossing).any() else 0.0
+    return {"boundary": boundary, "elsewhere": elsewhere, "seam": boundary / elsewhere if elsewhere > 0 else math.inf}

@@ -1,0 +1,444 @@
+"""One step of biology-aware scaling: the energy of paper Eq. 11 and its nlopt solve (METHOD §6).
+
+Owns the step's variables, the energy assembled from a ruleset, and the minimisation.
+
+**Transform** (paper Eq. 9, dimensionless as in METHOD §5/§6). With u = x̃ / c the body's
+dimensionless coefficients and u_j those of region j's vertices alone (Eq. 5, same c),
+
+    x̃'_i = s · c · sgn(u_i) |u_i|^(1 + α_0 + Σ_j α_j G(u_i, u_j,i)),   i ≥ 1,
+
+mode 0 untouched, detail beyond the m-th mode added back × s
+(:func:`allorules.scaling.multi_region_power_law`, :func:`allorules.scaling.apply_to_mesh`).
+Region coefficients are taken of the vertices *relative to the body's area-weighted centroid*
+(the point mode 0 represents), so that the gate G, and with it the result, does not depend on
+where the mesh sits in space (Eq. 5 on raw coordinates would).
+
+**Variables**: ``(s, α_0, α_j for each ruleset region)``; start at s = r^(1/3), every α = 0
+(isometric scaling to the step's mass), which is already close for allometric exponents.
+
+**Energy** (Eq. 11 with relative residuals, METHOD §6): a weighted sum of squared relative
+residuals, one term per active part of the ruleset:
+
+* body mass:   w_M · (M(x')/(r·M_0) − 1)²
+* each rule:   w   · (q(x')/(q_0·r^e) − 1)²        (q = the rule's measure of its region)
+* constraints: w   · Σ residual²                     (residuals from the plugin's ConstraintSpec)
+* a tiny ridge ``ALPHA_RIDGE · Σ α²`` so that a region no term sees (the neck in ``quadruped``)
+  keeps α ≈ 0 instead of drifting; it is 10⁻¹⁰ and moves no residual by more than ~10⁻⁶.
+
+Every trial mesh is measured along the material curves of the step's start body
+(:func:`allorules.measures.carry_fields`), so the measures vary smoothly with the variables; every
+measure is computed at most once per trial (``body.cache``).
+
+**nlopt**: the ruleset's algorithm (default LN_BOBYQA: derivative-free, bounded, quadratic model of
+a small sum of squares), ``ftol_rel`` = relative_tolerance, ``xtol_rel`` = parameter_tolerance,
+``maxeval`` = max_evaluations, bounds from ``scale_bounds`` (on s) and ``alpha_bounds`` (on every
+α). The first simplex/trust region is small (``INITIAL_STEP_*``): one step changes mass by 10 %,
+so α of a few hundredths is the relevant scale; a first trial at α = ±0.5 (nlopt's default from the
+bounds) would fold the mesh. The solve also stops when the energy is below ``ENERGY_TARGET``
+(every residual ≲ 10⁻⁵). Trials whose exponent turns non-positive or whose mesh cannot be measured
+get ``FAILED_ENERGY`` (the optimiser backs away); the best trial seen is always what is returned.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from .basis import HarmonicBasis, transform
+from .body import Body
+from .errors import AllorulesError, ScalingError
+from .scaling import apply_to_mesh, dimensionless, edited_coefficients, multi_region_power_law
+from .specs import ConstraintContext
+
+log = logging.getLogger("allorules")
+
+ALPHA_RIDGE = 1e-10
+INITIAL_STEP_SCALE = 0.01      # relative to the starting s
+INITIAL_STEP_ALPHA = 0.02
+ENERGY_TARGET = 1e-9
+FAILED_ENERGY = 1e6
+OUT_OF_BOUNDS_PENALTY = 1e3
+JACOBIAN_STEP_SCALE = 1e-3     # relative to s
+JACOBIAN_STEP_ALPHA = 1e-3
+GAUSS_NEWTON_TRIALS = 6
+
+Measure = Callable[[str, Body, "str | None"], float]
+
+
+# ---------------------------------------------------------------------------------------------
+# Terms
+
+
+@dataclass(frozen=True)
+class Term:
+    """One target of the energy: ``measure(region)`` should become ``initial · r^exponent``."""
+
+    id: str
+    kind: str                   # "body-mass" or "rule"
+    measure: str
+    region: str | None
+    exponent: float
+    weight: float
+
+
+def energy_terms(ruleset) -> list[Term]:
+    """The body-mass term and one term per rule of ``ruleset`` (constraints are handled apart)."""
+    terms = [Term("body-mass", "body-mass", ruleset.body_mass.measure, ruleset.body_mass.region, 1.0,
+                  float(ruleset.body_mass.weight))]
+    for rule in ruleset.rules:
+        terms.append(Term(rule.id, "rule", rule.measure, rule.region, float(rule.exponent), float(rule.weight)))
+    return terms
+
+
+def cached_measure(registry, overrides: Mapping[str, Callable[[Body], float]] | None = None) -> Measure:
+    """``measure(name, body, region)`` through the registry, computed once per body (``body.cache``).
+
+    ``overrides`` replaces whole-body measures by name (the run passes the frozen stress gauge for
+    ``stress``, so stress is measured at one material section throughout)."""
+    overrides = dict(overrides or {})
+
+    def measure(name: str, body: Body, region: str | None) -> float:
+        key = f"solver.measure:{name}:{region}"
+        if key not in body.cache:
+            if name in overrides and region is None:
+                value = overrides[name](body)
+            else:
+                value = registry.measure(name).compute(body, region)
+            value = float(value)
+            if not (math.isfinite(value) and value > 0):
+                from .errors import MeasurementError
+
+                raise MeasurementError(f"measure {name!r} of {region or 'the body'} gave {value!r}; it must be positive")
+            body.cache[key] = value
+        return body.cache[key]
+
+    return measure
+
+
+# ---------------------------------------------------------------------------------------------
+# The step's transform
+
+
+@dataclass
+class StepTransform:
+    """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j."""
+
+    body: Body
+    basis: HarmonicBasis
+    regions: tuple[str, ...]
+    coefficients: np.ndarray
+    u: np.ndarray
+    c: np.ndarray
+    region_us: list[np.ndarray]
+
+    @classmethod
+    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...]) -> "StepTransform":
+        coefficients = transform(basis, body.vertices)
+        u, c = dimensionless(coefficients)
+        # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
+        centre = (basis.mass @ body.vertices) / basis.mass.sum()
+        centred = body.vertices - centre
+        region_us = []
+        for region in regions:
+            mask = body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
+            region_us.append(transform(basis, centred * mask[:, None]) / c)     # x̃_seg / c
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us)
+
+    def vertices(self, variables: np.ndarray) -> np.ndarray:
+        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept)."""
+        scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
+        u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
+        new_coefficients = edited_coefficients(self.coefficients, self.u, u_new, self.c)
+        return apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+
+    def body_at(self, variables: np.ndarray) -> Body:
+        from .measures import carry_fields
+
+        return carry_fields(self.body, self.body.with_vertices(self.vertices(variables)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Energy
+
+
+@dataclass
+class Evaluation:
+    """One trial: its variables, weighted residual vector, energy and every named residual."""
+
+    variables: np.ndarray
+    energy: float
+    residuals: dict[str, float]
+    vector: np.ndarray | None = None      # √w · residual per term, then √ridge · α; energy = ‖vector‖²
+    body: Body | None = None
+    failure: str | None = None
+
+
+class StepEnergy:
+    """The energy of Eq. 11 for one step, assembled from a ruleset (see the module docstring)."""
+
+    def __init__(self, transform_: StepTransform, ruleset, registry, mass_ratio: float, measure: Measure):
+        self.transform = transform_
+        self.ruleset = ruleset
+        self.registry = registry
+        self.mass_ratio = float(mass_ratio)
+        self.measure = measure
+        self.terms = energy_terms(ruleset)
+        self.constraints = [(use, registry.constraint(use.name)) for use in ruleset.constraints]
+        start = transform_.body
+        self.initial = {term.id: measure(term.measure, start, term.region) for term in self.terms}
+        self.targets = {term.id: self.initial[term.id] * self.mass_ratio ** term.exponent for term in self.terms}
+        self.evaluations: list[Evaluation] = []
+        self.best: Evaluation | None = None
+
+    def residuals(self, body: Body) -> tuple[dict[str, float], list[float]]:
+        """Every relative residual of ``body`` by name, and the weighted residual vector."""
+        residuals: dict[str, float] = {}
+        vector: list[float] = []
+        for term in self.terms:
+            value = self.measure(term.measure, body, term.region)
+            residual = value / self.targets[term.id] - 1.0            # (q(x') − q*) / q*
+            residuals[term.id] = residual
+            vector.append(math.sqrt(term.weight) * residual)
+        context = ConstraintContext(self.transform.body, body, self.mass_ratio, self.measure)
+        for use, spec in self.constraints:
+            values = spec.residuals(context, spec.complete_parameters(use.parameters))
+            for name, residual in values.items():
+                residual = float(residual)
+                if not math.isfinite(residual):
+                    raise ScalingError(f"constraint {use.name!r} gave a non-finite residual {name!r}")
+                key = use.name if len(values) == 1 else f"{use.name}:{name}"
+                residuals[key] = residual
+                vector.append(math.sqrt(use.weight) * residual)
+        return residuals, vector
+
+    def evaluate(self, variables: np.ndarray) -> Evaluation:
+        variables = np.array(variables, dtype=float)
+        try:
+            body = self.transform.body_at(variables)
+            residuals, vector = self.residuals(body)
+            vector = np.array(vector + list(math.sqrt(ALPHA_RIDGE) * variables[1:]))
+            evaluation = Evaluation(variables, float(vector @ vector), residuals, vector, body)
+        except (ValueError, AllorulesError) as error:
+            evaluation = Evaluation(variables, FAILED_ENERGY, {}, None, None, str(error))
+        self.evaluations.append(evaluation)
+        if evaluation.failure is None and (self.best is None or evaluation.energy < self.best.energy):
+            self.best = evaluation
+        return evaluation
+
+    def __call__(self, variables: np.ndarray) -> float:
+        return self.evaluate(variables).energy
+
+
+# ---------------------------------------------------------------------------------------------
+# The solve
+
+
+@dataclass
+class StepSolution:
+    """What one step's solve reached (measured on its best trial mesh)."""
+
+    scale: float
+    alpha0: float
+    alphas: dict[str, float]
+    energy: float
+    residuals: dict[str, float]
+    evaluations: int
+    status: str
+    body: Body
+    failed_evaluations: int = 0
+    jacobian: np.ndarray | None = field(default=None, repr=False)   # of the residual vector, for the next step
+
+    @property
+    def variables(self) -> np.ndarray:
+        return np.array([self.scale, self.alpha0, *self.alphas.values()])
+
+    def as_dict(self) -> dict:
+        return {
+            "scale": float(self.scale),
+            "alpha0": float(self.alpha0),
+            "alphas": {key: float(value) for key, value in self.alphas.items()},
+            "energy": float(self.energy),
+            "residuals": {key: float(value) for key, value in self.residuals.items()},
+            "evaluations": int(self.evaluations),
+            "failed_evaluations": int(self.failed_evaluations),
+            "status": self.status,
+        }
+
+
+_NLOPT_STATUS = {1: "success", 2: "energy target reached", 3: "ftol reached", 4: "xtol reached",
+                 5: "maxeval reached", 6: "maxtime reached", -1: "failure", -2: "invalid arguments",
+                 -3: "out of memory", -4: "roundoff limited", -5: "forced stop"}
+
+
+def _finite_difference_jacobian(energy: StepEnergy, at: Evaluation, lower: np.ndarray, upper: np.ndarray) -> np.ndarray | None:
+    """∂(residual vector)/∂(variables) by forward differences (one trial per variable)."""
+    steps = np.full(len(at.variables), JACOBIAN_STEP_ALPHA)
+    steps[0] = JACOBIAN_STEP_SCALE * at.variables[0]
+    columns = []
+    for index, step in enumerate(steps):
+        moved = at.variables.copy()
+        if moved[index] + step > upper[index]:
+            step = -step
+        moved[index] += step
+        trial = energy.evaluate(moved)
+        if trial.vector is None:
+            return None
+        columns.append((trial.vector - at.vector) / step)
+    return np.column_stack(columns)
+
+
+def _gauss_newton(energy: StepEnergy, jacobian: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                  budget: int) -> tuple[np.ndarray, int]:
+    """Gauss–Newton steps on the residual vector with Broyden updates of the Jacobian.
+
+    Each iteration solves the linearised least squares min ‖v + J Δx‖ (Eq. 11 is a sum of
+    squares), clips to the bounds and halves the step while the energy does not drop; the Jacobian
+    is corrected by the rank-one ("good") Broyden update from every trial. Stops at
+    ENERGY_TARGET or after ``budget`` trials. Returns the Jacobian and the trials used.
+    """
+    used = 0
+    while used < budget and energy.best.energy > ENERGY_TARGET:
+        current = energy.best
+        delta = np.linalg.lstsq(jacobian, -current.vector, rcond=1e-10)[0]
+        accepted = False
+        for _ in range(3):
+            target = np.clip(current.variables + delta, lower, upper)
+            trial = energy.evaluate(target)
+            used += 1
+            if trial.vector is not None:
+                step = trial.variables - current.variables
+                if step @ step > 0:     # Broyden: J ← J + (Δv − J Δx) Δxᵀ / ΔxᵀΔx
+                    jacobian = jacobian + np.outer(trial.vector - current.vector - jacobian @ step, step) / (step @ step)
+                if trial.energy < current.energy:
+                    accepted = True
+                    break
+            delta = 0.5 * delta
+            if used >= budget:
+                break
+        if not accepted:
+            break
+    return jacobian, used
+
+
+def solve_step(
+    body: Body,
+    basis: HarmonicBasis,
+    ruleset,
+    registry,
+    mass_ratio: float,
+    *,
+    measure: Measure | None = None,
+    start: np.ndarray | None = None,
+    jacobian: np.ndarray | None = None,
+) -> StepSolution:
+    """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
+
+    ``body`` is the step's start mesh (labelled with the ruleset's regions), ``basis`` its harmonic
+    basis, ``mass_ratio`` the step's r. ``start`` overrides the starting point (default s = r^(1/3),
+    α = 0); ``jacobian`` (from the previous step's solution) saves the finite differences.
+    Raises :class:`ScalingError` only when no trial could be measured at all.
+    """
+    settings = ruleset.solver
+    measure = measure or cached_measure(registry)
+    regions = tuple(ruleset.regions)
+    step = StepTransform.of(body, basis, regions)
+    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure)
+
+    count = 2 + len(regions)
+    lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)
+    upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (count - 1)], dtype=float)
+    if start is None:
+        start = np.zeros(count)
+        start[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
+    start = np.clip(np.asarray(start, dtype=float), lower, upper)
+    budget = int(settings.max_evaluations)
+
+    first = energy.evaluate(start)
+    if first.vector is None:
+        raise ScalingError(f"the starting mesh of this step cannot be measured: {first.failure}")
+    status = "energy target reached"
+    if first.energy > ENERGY_TARGET:
+        if jacobian is None or jacobian.shape != (len(first.vector), count):
+            jacobian = _finite_difference_jacobian(energy, first, lower, upper)
+        if jacobian is not None:
+            jacobian, _ = _gauss_newton(energy, jacobian, lower, upper, min(GAUSS_NEWTON_TRIALS, budget - len(energy.evaluations)))
+            if energy.best.energy > ENERGY_TARGET and len(energy.evaluations) < budget:
+                # The Jacobian carried over may be stale: recompute it at the best point once.
+                fresh = _finite_difference_jacobian(energy, energy.best, lower, upper)
+                if fresh is not None:
+                    jacobian, _ = _gauss_newton(energy, fresh, lower, upper,
+                                                min(GAUSS_NEWTON_TRIALS, budget - len(energy.evaluations)))
+        if energy.best.energy > ENERGY_TARGET and len(energy.evaluations) < budget:
+            status = _nlopt_polish(energy, jacobian, lower, upper, budget - len(energy.evaluations))
+        elif energy.best.energy > ENERGY_TARGET:
+            status = "maxeval reached"
+    best = energy.best
+    failed = sum(1 for evaluation in energy.evaluations if evaluation.failure)
+    log.debug("step r=%.4f: %s after %d evaluations, energy %.3g", mass_ratio, status, len(energy.evaluations), best.energy)
+    return StepSolution(
+        scale=float(best.variables[0]),
+        alpha0=float(best.variables[1]),
+        alphas={region: float(value) for region, value in zip(regions, best.variables[2:])},
+        energy=float(best.energy),
+        residuals=dict(best.residuals),
+        evaluations=len(energy.evaluations),
+        status=status,
+        body=best.body,
+        failed_evaluations=failed,
+        jacobian=jacobian,
+    )
+
+
+def _nlopt_polish(energy: StepEnergy, jacobian: np.ndarray | None, lower: np.ndarray, upper: np.ndarray,
+                  budget: int) -> str:
+    """Minimise the energy with the ruleset's nlopt algorithm from the best trial so far.
+
+    The variables are preconditioned by the Jacobian's SVD, x = x_best + V diag(1/σ̃) z with
+    σ̃ = max(σ, 10⁻³ σ_max), so that every direction of z moves the residuals about equally (the
+    raw variables differ in effect by two orders of magnitude: α_0 moves every mode, a limb's α
+    only the few modes the limb shares). Without a Jacobian, z = x − x_best. Points outside the
+    ruleset's bounds are measured at the nearest point inside plus a quadratic penalty.
+    """
+    import nlopt
+
+    settings = energy.ruleset.solver
+    best = energy.best
+    count = len(best.variables)
+    if jacobian is not None and np.all(np.isfinite(jacobian)):
+        _, singular, right = np.linalg.svd(jacobian, full_matrices=False)
+        floor = max(float(singular[0]) * 1e-3, 1e-12)
+        precondition = right.T / np.maximum(singular, floor)
+    else:
+        precondition = np.eye(count)
+    origin = best.variables.copy()
+    radius = max(4.0 * math.sqrt(best.energy), 1e-4)
+
+    def objective(z, gradient):
+        x = origin + precondition @ np.asarray(z)
+        inside = np.clip(x, lower, upper)
+        excess = float(np.sum((x - inside) ** 2))
+        return energy(inside) + OUT_OF_BOUNDS_PENALTY * excess
+
+    algorithm = getattr(nlopt, settings.algorithm, None)
+    if algorithm is None:
+        raise ScalingError(f"nlopt has no algorithm {settings.algorithm!r}; use LN_BOBYQA or LN_SBPLX")
+    optimiser = nlopt.opt(algorithm, count)
+    optimiser.set_lower_bounds(np.full(count, -25.0 * radius))
+    optimiser.set_upper_bounds(np.full(count, 25.0 * radius))
+    optimiser.set_min_objective(objective)
+    optimiser.set_ftol_rel(settings.relative_tolerance)
+    optimiser.set_xtol_rel(settings.parameter_tolerance)
+    optimiser.set_maxeval(int(budget))
+    optimiser.set_stopval(ENERGY_TARGET)
+    optimiser.set_initial_step(np.full(count, radius))
+    try:
+        optimiser.optimize(np.zeros(count))
+        result = optimiser.last_optimize_result()
+        return _NLOPT_STATUS.get(result, str(result))
+    except nlopt.RoundoffLimited:
+        return "roundoff limited"
+    except (RuntimeError, ValueError) as error:   # nlopt failure: the best trial seen is kept
+        return f"nlopt failure: {error}"
