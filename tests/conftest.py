@@ -23,3 +23,11 @@ def shared_meshes() -> Path:
     if not SHARED_MESHES.is_dir():
         pytest.skip("../shared/meshes is not present")
     return SHARED_MESHES
+
+
+@pytest.fixture(scope="session")
+def generated_horse():
+    """The generated horse (~3000 vertices) with labels and truth; made once per test session."""
+    from allorules.quadruped import generate_quadruped
+
+    return generate_quadruped("horse", 3000)

@@ -24,6 +24,9 @@ COMMAND_MODULES = [
     "plugins",
     "segment",
     "measure",
+    "demo",
+    "batch",
+    "generate",
 ]
 
 log = logging.getLogger("allorules")

@@ -1,0 +1,78 @@
+"""``allorules generate -o OUT.obj``: write the generated quadruped, its labels and its truth."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+from ..errors import AllorulesError
+from ..export import atomic_write, save_mesh
+from ..quadruped import PRESETS, QuadrupedParameterError, generate_quadruped
+
+log = logging.getLogger("allorules")
+
+
+def register(subcommands: argparse._SubParsersAction) -> None:
+    parser = subcommands.add_parser(
+        "generate",
+        help="write a generated quadruped (closed mesh with known regions and measurements)",
+        description="Generate a smooth, closed quadruped (+Y up, +X forward, feet at y = 0) "
+        "whose region labels and true measurements are known. See docs/quadruped.md.",
+    )
+    parser.add_argument("-o", "--output", required=True, metavar="OUT.obj",
+                        help="mesh to write (.obj .ply .stl .off .glb)")
+    parser.add_argument("--preset", default="horse", choices=sorted(PRESETS),
+                        help="animal to start from (default: horse)")
+    parser.add_argument("--vertices", type=int, default=8000, metavar="N",
+                        help="about how many vertices (±20%%, default 8000)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="0: the preset exactly; other seeds vary every length by up to ±8%%")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
+                        help="override one parameter, e.g. --set neck_length=0.9 (repeatable)")
+    parser.add_argument("--labels", metavar="LABELS.json", help="also write per-vertex region labels")
+    parser.add_argument("--truth", metavar="TRUTH.json", help="also write the true measurements")
+    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    parser.set_defaults(run=run)
+
+
+def _overrides(items: list[str]) -> dict[str, float]:
+    values = {}
+    for item in items:
+        name, separator, text = item.partition("=")
+        if not separator:
+            raise QuadrupedParameterError(f"--set {item!r}: write NAME=VALUE, e.g. --set neck_length=0.9")
+        try:
+            values[name.strip()] = float(text)
+        except ValueError:
+            raise QuadrupedParameterError(f"--set {item!r}: {text!r} is not a number") from None
+    return values
+
+
+def run(arguments: argparse.Namespace) -> int:
+    outputs = [Path(p) for p in (arguments.output, arguments.labels, arguments.truth) if p]
+    if len({p.resolve() for p in outputs}) != len(outputs):
+        raise AllorulesError("the mesh, labels and truth outputs must be different files")
+    if not arguments.force:
+        existing = [str(p) for p in outputs if p.exists()]
+        if existing:
+            raise AllorulesError(f"{', '.join(existing)} already exist(s); choose other names or pass --force")
+    for path in outputs[1:]:
+        if path.suffix.lower() != ".json":
+            raise AllorulesError(f"{path}: labels and truth are written as JSON; name the file *.json")
+
+    animal = generate_quadruped(arguments.preset, arguments.vertices, seed=arguments.seed,
+                                **_overrides(arguments.overrides))
+    save_mesh(arguments.output, animal.vertices, animal.faces, overwrite=arguments.force)
+    log.info("wrote %s: %s, %d vertices, %d faces", arguments.output, arguments.preset,
+             len(animal.vertices), len(animal.faces))
+    if arguments.labels:
+        atomic_write(arguments.labels, json.dumps(animal.labels_document()))
+        log.info("wrote %s", arguments.labels)
+    if arguments.truth:
+        document = animal.truth.as_dict()
+        document.update(preset=arguments.preset, seed=arguments.seed, vertices=len(animal.vertices),
+                        parameters=animal.parameters.as_dict())
+        atomic_write(arguments.truth, json.dumps(document, indent=2))
+        log.info("wrote %s", arguments.truth)
+    return 0
