@@ -35,7 +35,6 @@ from .errors import AllorulesError, BasisError, ScalingError, SegmentationError
 from .global_scaling import StressGauge, check_mass_ratio, count_flipped_faces, step_ratios
 from .scaling import (
     apply_to_mesh,
-    arithmetic_region_scaling,
     dimensionless,
     edited_coefficients,
     local_power_law,
@@ -336,29 +335,35 @@ def scale_region(
     if not math.isfinite(alpha):
         raise ScalingError(f"alpha must be a finite number, got {alpha}")
     basis = basis or _basis_for(body, modes, None, use_cache)
-    coefficients = transform(basis, body.vertices)
-    seg = region_coefficients(basis, body, region)
     if arithmetic_factor is not None:
         if not (math.isfinite(arithmetic_factor) and arithmetic_factor > 0):
             raise ScalingError(f"the arithmetic factor must be a positive number, got {arithmetic_factor}")
-        new = arithmetic_region_scaling(coefficients, seg, arithmetic_factor)
-    else:
-        u, c = dimensionless(coefficients)
-        try:
-            u_new = local_power_law(u, seg / c, float(alpha))
-        except ValueError as error:
-            raise ScalingError(f"alpha {alpha:g} is too large for region {region!r}: {error}") from None
-        new = edited_coefficients(coefficients, u, u_new, c)
+        # x̃' = x̃ + (f − 1)·x̃_seg (arithmetic_region_scaling) reconstructed with the COMPLETE basis,
+        # which by linearity is x' = x + (f − 1)·I_seg ⊙ (x − centre). With a truncated basis the
+        # edit would be low-passed and its tear blurred into ripples; the paper's point (Fig. 14) is
+        # the tear itself.
+        centre = (basis.mass @ body.vertices) / basis.mass.sum()
+        mask = body.region_mask(region).astype(float)[:, None]
+        return body.with_vertices(body.vertices + (arithmetic_factor - 1.0) * mask * (body.vertices - centre))
+    coefficients = transform(basis, body.vertices)
+    seg = region_coefficients(basis, body, region)
+    u, c = dimensionless(coefficients)
+    try:
+        u_new = local_power_law(u, seg / c, float(alpha))                  # Eq. 6 with the gate of Eq. 7
+    except ValueError as error:
+        raise ScalingError(f"alpha {alpha:g} is too large for region {region!r}: {error}") from None
+    new = edited_coefficients(coefficients, u, u_new, c)
     return body.with_vertices(apply_to_mesh(basis, body.vertices, new, 1.0, coefficients=coefficients))
 
 
 def seam_strain(before: np.ndarray, after: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> dict[str, float]:
-    """How an edit stretches edges across a region's boundary compared with elsewhere.
+    """How much an edit stretches the edges across a region's boundary compared with both sides.
 
-    Edge strain = |ℓ'/ℓ − 1|. Returns the largest strain of edges joining a region vertex to a
-    non-region vertex (``boundary``), the 99th percentile of strain over all other edges
-    (``elsewhere``) and their ratio (``seam``): about 1 or below for a seamless edit, large when the
-    boundary tears.
+    Edge strain = |ℓ'/ℓ − 1|. Returns the largest strain of the edges joining a region vertex to a
+    non-region vertex (``boundary``), the 99th percentile of strain over edges inside the region
+    (``inside``) and outside it (``outside``), and ``seam`` = boundary / max(inside, outside): about
+    1 for a seamless edit (the boundary stretches like its neighbourhood), large when it tears
+    (the arithmetic variant: the region's vertices move away from their neighbours).
     """
     faces = np.asarray(faces)
     edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
@@ -366,7 +371,14 @@ def seam_strain(before: np.ndarray, after: np.ndarray, faces: np.ndarray, mask: 
     length_after = np.linalg.norm(after[edges[:, 0]] - after[edges[:, 1]], axis=1)
     strain = np.abs(length_after / np.maximum(length_before, np.finfo(float).tiny) - 1.0)
     mask = np.asarray(mask, dtype=bool)
-    crossing = mask[edges[:, 0]] != mask[edges[:, 1]]
+    first, second = mask[edges[:, 0]], mask[edges[:, 1]]
+
+    def high(selection: np.ndarray) -> float:
+        return float(np.percentile(strain[selection], 99)) if selection.any() else 0.0
+
+    crossing = first != second
     boundary = float(strain[crossing].max()) if crossing.any() else 0.0
-    elsewhere = float(np.percentile(strain[~crossing], 99)) if (~crossing).any() else 0.0
-    return {"boundary": boundary, "elsewhere": elsewhere, "seam": boundary / elsewhere if elsewhere > 0 else math.inf}
+    inside, outside = high(first & second), high(~first & ~second)
+    reference = max(inside, outside)
+    return {"boundary": boundary, "inside": inside, "outside": outside,
+            "seam": boundary / reference if reference > 0 else (0.0 if boundary == 0 else math.inf)}

@@ -1,0 +1,271 @@
+"""Biology-aware scaling runs on the generated quadruped, local scaling, and the scale CLI options.
+
+The 1-D local experiment (Figures 12/14: the change stays inside the indicator's region without a
+jump, arithmetic scaling jumps) is tested in tests/test_experiments.py; here the same comparison is
+made on a mesh (:func:`seam_strain`).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import textwrap
+
+import numpy as np
+import pytest
+
+from allorules.biology_scaling import (
+    CONSTRAINT_TOLERANCE,
+    EXPONENT_TOLERANCE,
+    MASS_TOLERANCE,
+    scale_region,
+    scale_with_ruleset,
+    seam_strain,
+)
+from allorules.body import Body
+from allorules.errors import ScalingError, SegmentationError
+from allorules.global_scaling import count_flipped_faces, step_ratios
+from allorules.plugins import registry_for
+from allorules.rules import load_ruleset, override_exponents
+
+VERTICES = 1000
+MODES = 300
+
+
+@pytest.fixture(autouse=True)
+def _no_cache(monkeypatch):
+    monkeypatch.setenv("ALLORULES_CACHE_DIR", "off")
+
+
+@pytest.fixture(scope="module")
+def animal():
+    from allorules.quadruped import generate_quadruped
+
+    return generate_quadruped("horse", vertices=VERTICES)
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return registry_for(None)
+
+
+def _run(animal, registry, ruleset, ratio, **options):
+    return scale_with_ruleset(animal.body(), ruleset, ratio, registry=registry, modes=MODES, use_cache=False, **options)
+
+
+def _check_output(result, body):
+    out = result.body
+    assert np.array_equal(out.faces, body.faces)                      # connectivity kept
+    assert np.array_equal(out.labels, body.labels)                    # labels carried along
+    assert np.all(np.isfinite(out.vertices))
+    assert result.flipped_faces == count_flipped_faces(body.vertices, out.vertices, body.faces)
+    assert result.flipped_faces <= 0.002 * len(body.faces)
+    report = result.as_dict()
+    json.dumps(report, allow_nan=False)
+    for key in ("mass_ratio", "stress_ratio", "steps", "converged", "rules", "step_details"):
+        assert key in report
+    for rule in report["rules"]:
+        assert {"id", "region", "measure", "exponent", "achieved_exponent"} <= set(rule)
+    for step in report["step_details"]:
+        assert step["residuals"] and all(math.isfinite(value) for value in step["residuals"].values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ratio", [2.0, 0.5])
+def test_quadruped_ruleset_meets_every_target(animal, registry, ratio):
+    ruleset = load_ruleset("quadruped", registry)
+    result = _run(animal, registry, ruleset, ratio)
+    assert result.converged, result.messages
+    assert len(result.steps) == len(step_ratios(ratio))
+    for rule in result.rules:
+        assert abs(rule.achieved_exponent - rule.exponent) <= 0.02, rule
+    assert result.mass_ratio == pytest.approx(ratio, rel=0.01)
+    assert result.stress_ratio == pytest.approx(1.0, abs=0.02)
+    # the reported figures are what an independent measurement of the output gives
+    body, out = animal.body(), Body(result.body.vertices.copy(), animal.faces, animal.labels, animal.region_names)
+    for rule in ruleset.rules:
+        spec = registry.measure(rule.measure)
+        achieved = math.log(spec.compute(out, rule.region) / spec.compute(body, rule.region)) / math.log(ratio)
+        reported = next(outcome for outcome in result.rules if outcome.id == rule.id)
+        assert achieved == pytest.approx(reported.achieved_exponent, abs=1e-9)
+    _check_output(result, body)
+
+
+def test_isometric_ruleset_is_uniform_scaling(animal, registry):
+    result = _run(animal, registry, load_ruleset("isometric", registry), 2.0)
+    assert result.converged and len(result.steps) == 8
+    body = animal.body()
+    from allorules.laplacian import lumped_mass
+
+    weights = lumped_mass(body.vertices, body.faces)
+    centre = weights @ body.vertices / weights.sum()
+    np.testing.assert_allclose(result.body.vertices, centre + 2.0 ** (1 / 3) * (body.vertices - centre),
+                               atol=1e-6 * np.ptp(body.vertices))
+    assert all(step.evaluations == 1 for step in result.steps)       # the start is already the answer
+    for rule in result.rules:
+        assert rule.achieved_exponent == pytest.approx(rule.exponent, abs=1e-6)
+    _check_output(result, body)
+
+
+@pytest.mark.slow
+def test_neck_override_moves_the_neck_exponent(animal, registry):
+    ruleset = override_exponents(load_ruleset("neck-override", registry), {"neck-length": 0.55}, registry)
+    ratio = 1.1 ** 3
+    result = _run(animal, registry, ruleset, ratio)
+    assert result.converged, result.messages
+    neck = next(rule for rule in result.rules if rule.id == "neck-length")
+    assert neck.exponent == 0.55
+    assert neck.achieved_exponent == pytest.approx(0.55, abs=EXPONENT_TOLERANCE)
+    assert len(result.steps) == 3
+
+
+def _contradictory_ruleset(tmp_path, registry):
+    path = tmp_path / "contradiction.yaml"
+    path.write_text(textwrap.dedent("""\
+        name: contradiction
+        description: two rules on the same quantity that cannot both hold
+        extends: quadruped
+        rules:
+          - id: foreleg-length-again
+            region: forelimbs
+            measure: length
+            exponent: 1.0
+            source: deliberately impossible
+        solver:
+          max_evaluations: 40
+        """), encoding="utf-8")
+    return path
+
+
+def test_unreachable_target_is_reported_not_hidden(animal, registry, tmp_path):
+    ruleset = load_ruleset(_contradictory_ruleset(tmp_path, registry), registry)
+    result = _run(animal, registry, ruleset, 1.1)
+    assert result.converged is False
+    assert any("foreleg-length" in message for message in result.messages)
+    assert "not converged" in result.messages[-1]
+    outcomes = {rule.id: rule for rule in result.rules}
+    # the least-squares compromise lies between the two targets, far from both
+    assert abs(outcomes["foreleg-length"].error) > EXPONENT_TOLERANCE
+    assert abs(outcomes["foreleg-length-again"].error) > EXPONENT_TOLERANCE
+    assert result.as_dict()["converged"] is False
+
+
+def test_missing_regions_are_refused(animal, registry):
+    body = animal.body()
+    unlabelled = Body(body.vertices, body.faces)
+    with pytest.raises(SegmentationError, match="needs region"):
+        scale_with_ruleset(unlabelled, load_ruleset("quadruped", registry), 2.0, registry=registry, modes=MODES)
+    with pytest.raises(ScalingError, match="mass ratio"):
+        scale_with_ruleset(body, load_ruleset("quadruped", registry), -1.0, registry=registry, modes=MODES)
+
+
+def test_tolerances_are_the_documented_ones():
+    assert (EXPONENT_TOLERANCE, MASS_TOLERANCE, CONSTRAINT_TOLERANCE) == (0.02, 0.01, 0.02)
+
+
+# ---------------------------------------------------------------------------------------------
+# Local scaling (Eq. 5-7) against the arithmetic variant
+
+
+@pytest.fixture(scope="module")
+def basis(animal):
+    from allorules.basis import compute_basis
+
+    return compute_basis(animal.vertices, animal.faces, MODES, use_cache=False)
+
+
+def test_local_power_law_has_no_seam_arithmetic_tears(animal, basis):
+    body = animal.body()
+    assert np.array_equal(scale_region(body, "head", 0.0, basis=basis).vertices, body.vertices)
+    head = body.region_mask("head")
+    grown = scale_region(body, "head", -0.3, basis=basis)
+    moved = np.linalg.norm(grown.vertices - body.vertices, axis=1)
+    assert moved[head].mean() > 2 * moved[~head].mean()          # the change is mostly in the head
+    # a comparable arithmetic edit: the head's vertices scaled by the factor its size changed by
+    from allorules.measures import region_mass
+
+    factor = (region_mass(grown, "head") / region_mass(body, "head")) ** (1 / 3)
+    assert factor > 1.02
+    torn = scale_region(body, "head", 0.0, basis=basis, arithmetic_factor=factor)
+    smooth, seam = seam_strain(body.vertices, grown.vertices, body.faces, head), seam_strain(body.vertices, torn.vertices, body.faces, head)
+    assert smooth["seam"] < 2.0                        # boundary edges stretch like the rest
+    assert seam["boundary"] > 5 * smooth["boundary"]   # the arithmetic variant tears at the boundary
+    assert seam["seam"] > 5.0
+    assert seam["inside"] == pytest.approx(factor - 1.0, rel=1e-3)   # inside, arithmetic is uniform scaling
+    assert count_flipped_faces(body.vertices, grown.vertices, body.faces) == 0
+
+
+def test_local_scaling_refuses_unknown_region(animal, basis):
+    with pytest.raises(SegmentationError, match="no region 'tail-fin'"):
+        scale_region(animal.body(), "tail-fin", 0.2, basis=basis)
+
+
+# ---------------------------------------------------------------------------------------------
+# The CLI options (allorules scale ... --ruleset / --region)
+
+
+def _parser():
+    from allorules.cli import scale_ruleset
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("mesh")
+    scale_ruleset.add_arguments(parser)
+    return parser
+
+
+@pytest.fixture(scope="module")
+def mesh_files(animal, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("animal")
+    mesh = folder / "animal.obj"
+    animal.to_trimesh().export(mesh)
+    labels = folder / "animal.labels.json"
+    labels.write_text(json.dumps(animal.labels_document()), encoding="utf-8")
+    return mesh, labels
+
+
+def test_cli_local_scaling_writes_mesh_and_report(mesh_files, tmp_path, capsys):
+    from allorules.cli import scale_ruleset
+
+    mesh, labels = mesh_files
+    out, report = tmp_path / "big-head.obj", tmp_path / "local.json"
+    arguments = _parser().parse_args([str(mesh), "--region", "head", "--alpha", "-0.2", "--segmentation", str(labels),
+                                      "--modes", str(MODES), "-o", str(out), "--report", str(report)])
+    assert scale_ruleset.wanted(arguments)
+    assert scale_ruleset.run(arguments) == 0
+    assert out.exists()
+    data = json.loads(report.read_text())
+    assert data["mode"] == "local" and data["region"] == "head" and data["seam"]["seam"] < 2.0
+    assert "edge strain" in capsys.readouterr().out
+
+
+def test_cli_unconverged_run_fails_without_writing_the_mesh(mesh_files, tmp_path, registry):
+    from allorules.cli import scale_ruleset
+
+    mesh, labels = mesh_files
+    ruleset = _contradictory_ruleset(tmp_path, registry)
+    out, report = tmp_path / "out.obj", tmp_path / "report.json"
+    arguments = _parser().parse_args([str(mesh), "--ruleset", str(ruleset), "--mass-ratio", "1.1", "--segmentation",
+                                      str(labels), "--modes", str(MODES), "-o", str(out), "--report", str(report)])
+    with pytest.raises(ScalingError, match="did not reach its targets.*no mesh written"):
+        scale_ruleset.run(arguments)
+    assert not out.exists()
+    data = json.loads(report.read_text())
+    assert data["converged"] is False and data["output"] is None
+    assert {rule["id"] for rule in data["rules"]} >= {"foreleg-length", "foreleg-length-again"}
+
+
+def test_cli_refuses_bad_requests(mesh_files, tmp_path):
+    from allorules.cli import scale_ruleset
+    from allorules.errors import AllorulesError
+
+    mesh, labels = mesh_files
+    cases = [
+        ([str(mesh), "--ruleset", "quadruped", "-o", str(tmp_path / "a.obj")], "needs --mass-ratio"),
+        ([str(mesh), "--ruleset", "quadruped", "--mass-ratio", "0", "-o", str(tmp_path / "a.obj")], "mass ratio"),
+        ([str(mesh), "--region", "head", "-o", str(tmp_path / "a.obj")], "needs --alpha"),
+        ([str(mesh), "--ruleset", "quadruped", "--mass-ratio", "2", "-o", str(mesh)], "overwrite the input"),
+        ([str(mesh), "--ruleset", "quadruped", "--mass-ratio", "2"], "-o OUT"),
+    ]
+    for argv, message in cases:
+        with pytest.raises(AllorulesError, match=message):
+            scale_ruleset.run(_parser().parse_args(argv))

@@ -1,0 +1,124 @@
+"""The step solver: Eq. 9 transform, the Eq. 11 energy assembled from a ruleset, one nlopt step."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from allorules.basis import compute_basis
+from allorules.body import Body
+from allorules.global_scaling import StressGauge
+from allorules.plugins import registry_for
+from allorules.rules import load_ruleset
+from allorules.solver import StepEnergy, StepTransform, cached_measure, energy_terms, solve_step
+
+VERTICES = 1000
+MODES = 300
+
+
+@pytest.fixture(autouse=True)
+def _no_cache(monkeypatch):
+    monkeypatch.setenv("ALLORULES_CACHE_DIR", "off")
+
+
+@pytest.fixture(scope="module")
+def animal():
+    from allorules.quadruped import generate_quadruped
+
+    body = generate_quadruped("horse", vertices=VERTICES).body()
+    basis = compute_basis(body.vertices, body.faces, MODES, use_cache=False)
+    return body, basis
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return registry_for(None)
+
+
+def _measure(registry, body):
+    gauge = StressGauge.choose(body)
+    return cached_measure(registry, {"stress": gauge.stress})
+
+
+def test_identity_and_uniform_scaling(animal, registry):
+    body, basis = animal
+    step = StepTransform.of(body, basis, load_ruleset("quadruped", registry).regions)
+    count = 2 + len(step.regions)
+    identity = np.zeros(count)
+    identity[0] = 1.0
+    assert np.array_equal(step.vertices(identity), body.vertices)          # bit for bit
+    # s alone, every α = 0: uniform scaling about the area-weighted centroid (mode 0 kept)
+    uniform = identity.copy()
+    uniform[0] = 1.25
+    centre = (basis.mass @ body.vertices) / basis.mass.sum()
+    np.testing.assert_allclose(step.vertices(uniform), centre + 1.25 * (body.vertices - centre), atol=1e-9)
+    # a region's α moves that region most (the paper's local scaling shares modes, so not only it)
+    local = identity.copy()
+    local[2 + step.regions.index("head")] = 0.3
+    moved = np.linalg.norm(step.vertices(local) - body.vertices, axis=1)
+    head, hindlimbs = body.region_mask("head"), body.region_mask("hindlimbs")
+    assert moved[head].mean() > 2 * moved[~head].mean()
+    assert moved[head].mean() > 1.3 * moved[hindlimbs].mean()
+
+
+def test_region_coefficients_do_not_depend_on_place_size_or_units(animal, registry):
+    body, basis = animal
+    regions = ("head", "forelimbs")
+    reference = StepTransform.of(body, basis, regions)
+    moved_body = Body(1000.0 * body.vertices + np.array([5.0e3, -2.0e3, 7.0e2]), body.faces, body.labels,
+                      body.region_names, body.frame)
+    moved_basis = compute_basis(moved_body.vertices, moved_body.faces, MODES, use_cache=False)
+    moved = StepTransform.of(moved_body, moved_basis, regions)
+    # bases are unique up to sign per mode; compare magnitudes and the sign-free gate products
+    for a, b in zip(reference.region_us, moved.region_us):
+        np.testing.assert_allclose(np.abs(a[1:20]), np.abs(b[1:20]), rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(np.abs(reference.u[1:20]), np.abs(moved.u[1:20]), rtol=1e-5, atol=1e-8)
+
+
+def test_energy_terms_follow_the_ruleset(animal, registry):
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    terms = energy_terms(ruleset)
+    assert [term.id for term in terms] == ["body-mass"] + [rule.id for rule in ruleset.rules]
+    energy = StepEnergy(StepTransform.of(body, basis, ruleset.regions), ruleset, registry, 1.1, _measure(registry, body))
+    # target of every rule: q_0 · r^e
+    for rule in ruleset.rules:
+        initial = registry.measure(rule.measure).compute(body, rule.region)
+        assert energy.targets[rule.id] == pytest.approx(initial * 1.1 ** rule.exponent, rel=1e-12)
+    # at isometric scaling to the step's mass: mass met exactly, each rule off by r^(e_iso − e) − 1
+    start = np.zeros(2 + len(ruleset.regions))
+    start[0] = 1.1 ** (1 / 3)
+    evaluation = energy.evaluate(start)
+    assert evaluation.residuals["body-mass"] == pytest.approx(0.0, abs=1e-9)
+    isometric = {"length": 1 / 3, "girth": 1 / 3, "mass": 1.0}
+    for rule in ruleset.rules:
+        expected = 1.1 ** (isometric[rule.measure] - rule.exponent) - 1.0
+        assert evaluation.residuals[rule.id] == pytest.approx(expected, abs=2e-3)
+    # uniform scaling by s multiplies σ = M/A by s: the stress constraint sees exactly that
+    assert evaluation.residuals["terrestrial-limb-stress"] == pytest.approx(1.1 ** (1 / 3) - 1.0, rel=1e-6)
+    assert evaluation.energy == pytest.approx(float(evaluation.vector @ evaluation.vector))
+    assert len(evaluation.vector) == len(terms) + len(ruleset.constraints) + len(ruleset.regions) + 1
+
+
+def test_one_step_meets_every_target(animal, registry):
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    solution = solve_step(body, basis, ruleset, registry, 1.1, measure=_measure(registry, body))
+    assert solution.status in ("energy target reached", "ftol reached", "xtol reached", "success")
+    assert max(abs(value) for value in solution.residuals.values()) < 1e-3
+    assert solution.evaluations <= ruleset.solver.max_evaluations
+    # measured independently on a fresh copy of the chosen mesh (no carried fields)
+    fresh = body.with_vertices(solution.body.vertices.copy())
+    for rule in ruleset.rules:
+        before = registry.measure(rule.measure).compute(body, rule.region)
+        after = registry.measure(rule.measure).compute(fresh, rule.region)
+        assert after / before == pytest.approx(1.1 ** rule.exponent, rel=5e-3)
+    assert np.array_equal(solution.body.faces, body.faces) and np.all(np.isfinite(solution.body.vertices))
+
+
+def test_identity_step_stays_put(animal, registry):
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    solution = solve_step(body, basis, ruleset, registry, 1.0, measure=_measure(registry, body))
+    assert solution.evaluations == 1
+    assert solution.scale == 1.0 and solution.alpha0 == 0.0 and not any(solution.alphas.values())
+    assert np.array_equal(solution.body.vertices, body.vertices)
