@@ -40,6 +40,7 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sparse
+import scipy.sparse.csgraph  # noqa: F401  (sparse.csgraph)
 import trimesh
 from skimage.measure import marching_cubes
 
@@ -104,7 +105,7 @@ class QuadrupedParameters:
     foreleg_radius_bottom: float = 0.05
     hindleg_radius_top: float = 0.095
     hindleg_radius_bottom: float = 0.05
-    foreleg_offset: float = 0.5
+    foreleg_offset: float = 0.6
     hindleg_offset: float = 0.45
     leg_spacing: float = 0.26
     tail_length: float = 0.55
@@ -136,48 +137,57 @@ PRESETS: dict[str, QuadrupedParameters] = {
     "elephant": QuadrupedParameters(
         torso_length=3.1, chest_length=1.9, chest_height=1.85, chest_width=1.55,
         abdomen_length=2.0, abdomen_height=1.75, abdomen_width=1.5,
-        neck_length=0.25, neck_radius=0.50, neck_head_radius=0.45, neck_angle=20.0,
+        neck_length=0.45, neck_radius=0.45, neck_head_radius=0.40, neck_angle=20.0,
         head_length=1.0, head_height=0.95, head_width=0.85, head_angle=-35.0,
         snout_length=1.3, snout_radius=0.17, snout_angle=-80.0,
         foreleg_length=1.3, hindleg_length=1.25,
         foreleg_radius_top=0.27, foreleg_radius_bottom=0.22,
         hindleg_radius_top=0.28, hindleg_radius_bottom=0.22,
         foreleg_offset=0.6, hindleg_offset=0.45, leg_spacing=0.80,
-        tail_length=0.9, tail_radius=0.08, tail_angle=65.0,
+        tail_length=0.9, tail_radius=0.08, tail_angle=45.0,
         torso_blend=0.45, limb_blend=0.08),
     "giraffe": QuadrupedParameters(
-        torso_length=1.9, chest_length=1.2, chest_height=1.0, chest_width=0.62,
-        abdomen_length=1.1, abdomen_height=0.85, abdomen_width=0.62,
+        torso_length=1.9, chest_length=1.2, chest_height=1.05, chest_width=0.64,
+        abdomen_length=1.1, abdomen_height=0.8, abdomen_width=0.58,
         neck_length=1.8, neck_radius=0.18, neck_head_radius=0.09, neck_angle=62.0,
         head_length=0.6, head_height=0.22, head_width=0.2, head_angle=-35.0,
         foreleg_length=1.85, hindleg_length=1.7,
         foreleg_radius_top=0.10, foreleg_radius_bottom=0.055,
         hindleg_radius_top=0.11, hindleg_radius_bottom=0.055,
-        foreleg_offset=0.4, hindleg_offset=0.45, leg_spacing=0.32,
+        foreleg_offset=0.6, hindleg_offset=0.45, leg_spacing=0.30,
         tail_length=0.8, tail_radius=0.05, tail_angle=60.0,
         torso_blend=0.25, limb_blend=0.06),
     "dog": QuadrupedParameters(
-        torso_length=0.62, chest_length=0.36, chest_height=0.26, chest_width=0.20,
-        abdomen_length=0.36, abdomen_height=0.20, abdomen_width=0.19,
+        torso_length=0.62, chest_length=0.36, chest_height=0.26, chest_width=0.22,
+        abdomen_length=0.36, abdomen_height=0.20, abdomen_width=0.21,
         neck_length=0.14, neck_radius=0.065, neck_head_radius=0.05, neck_angle=45.0,
         head_length=0.24, head_height=0.11, head_width=0.11, head_angle=-10.0,
         foreleg_length=0.34, hindleg_length=0.36,
         foreleg_radius_top=0.03, foreleg_radius_bottom=0.018,
         hindleg_radius_top=0.035, hindleg_radius_bottom=0.018,
-        foreleg_offset=0.45, hindleg_offset=0.45, leg_spacing=0.09,
+        foreleg_offset=0.6, hindleg_offset=0.45, leg_spacing=0.10,
         tail_length=0.25, tail_radius=0.02, tail_angle=-20.0,
         torso_blend=0.08, limb_blend=0.018),
 }
 
 
 def _jitter(parameters: QuadrupedParameters, seed: int) -> QuadrupedParameters:
-    """Seed 0: the parameters as given. Other seeds: every length times a factor in [0.92, 1.08]."""
+    """Seed 0: the parameters as given. Other seeds: every length times a factor in [0.92, 1.08],
+    except that leg spacing and top leg radii grow no more than the body's width, and the limb
+    blend no more than the radii it rounds (so a variant still fits together)."""
     if seed == 0:
         return parameters
     rng = np.random.default_rng(seed)
+    factor = {name: rng.uniform(0.92, 1.08) for name in _LENGTH_FIELDS}
+    # keep what must fit inside something else fitting: legs under the body, blends under radii
+    width = min(factor["chest_width"], factor["abdomen_width"])
+    for name in ("leg_spacing", "foreleg_radius_top", "hindleg_radius_top"):
+        factor[name] = min(factor[name], width)
+    factor["limb_blend"] = min(factor["limb_blend"], factor["foreleg_radius_top"],
+                               factor["hindleg_radius_top"], factor["tail_radius"])
     values = parameters.as_dict()
-    for name in _LENGTH_FIELDS:
-        values[name] = float(values[name] * rng.uniform(0.92, 1.08))
+    for name, f in factor.items():
+        values[name] = float(values[name] * f)
     return QuadrupedParameters(**values)
 
 
@@ -380,7 +390,8 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     abdomen_centre = np.array([x_abdomen, y_abdomen, 0.0])
 
     k_torso, k_limb = p.torso_blend, p.limb_blend
-    thinnest = min(p.foreleg_radius_bottom, p.hindleg_radius_bottom, 0.55 * p.tail_radius, p.neck_head_radius)
+    thinnest = min(p.foreleg_radius_bottom, p.hindleg_radius_bottom, 0.55 * p.tail_radius, p.neck_head_radius,
+                   min(p.head_length, p.head_height, p.head_width) / 2)
     if p.snout_length > 0:
         thinnest = min(thinnest, 0.6 * p.snout_radius)
     if k_limb >= 0.9 * min(p.foreleg_radius_top, p.hindleg_radius_top, p.tail_radius * 1.5):
@@ -431,12 +442,12 @@ def _layout(p: QuadrupedParameters) -> _Layout:
         raise QuadrupedParameterError("the tail reaches the ground: shorten it or lower tail_angle")
 
     # Leg cuts: below the lowest torso point in the leg cell and below the leg/torso fillet.
-    fore_back = x_fore - (p.foreleg_radius_top + 1.5 * k_limb)
-    hind_front = x_hind + (p.hindleg_radius_top + 1.5 * k_limb)
+    fore_back = x_fore - (p.foreleg_radius_top + 2.5 * k_limb)
+    hind_front = x_hind + (p.hindleg_radius_top + 2.5 * k_limb)
     split_x = 0.5 * (x_chest + x_abdomen)
     if not hind_front < split_x < fore_back:
         raise QuadrupedParameterError("fore and hind legs are too close together: increase torso_length or leg offsets")
-    if x_hind - p.hindleg_radius_top - 1.5 * k_limb <= x_tail:
+    if x_hind - p.hindleg_radius_top - 2.5 * k_limb <= x_tail:
         raise QuadrupedParameterError("hind legs stand behind the rump: reduce hindleg_offset")
 
     def cut_height(x_from, x_to, x_leg, top):
@@ -874,15 +885,22 @@ def generate_quadruped(preset: str = "horse", vertices: int = 8000, *, seed: int
     extent = float(np.max(layout.upper - layout.lower))
     coarse_vertices, coarse_faces = _marching_cubes(layout, min(extent / 60, layout.thinnest_radius))
     area = float(trimesh.Trimesh(coarse_vertices, coarse_faces, process=False).area)
-    spacing = _spacing_for(area, vertices)
-    spacing = min(spacing, layout.thinnest_radius / 1.2)
-    mesh_vertices, mesh_faces = _marching_cubes(layout, spacing)
-    if len(mesh_vertices) > 1.05 * vertices:
-        mesh_vertices, mesh_faces = _decimate(
-            mesh_vertices, mesh_faces, vertices,
-            settle=lambda v, f: _relax(layout, v, f, spacing, iterations=1))
-    mesh_vertices = _project(layout, mesh_vertices, 1e-3 * spacing)
-    mesh_vertices = _relax(layout, mesh_vertices, mesh_faces, spacing, iterations=8)
+    spacing = min(_spacing_for(area, vertices), layout.thinnest_radius / 1.2)
+    for attempt in range(3):
+        mesh_vertices, mesh_faces = _marching_cubes(layout, spacing)
+        if len(mesh_vertices) > 1.05 * vertices:
+            mesh_vertices, mesh_faces = _decimate(
+                mesh_vertices, mesh_faces, vertices,
+                settle=lambda v, f: _relax(layout, v, f, spacing, iterations=1))
+        mesh_vertices = _project(layout, mesh_vertices, 1e-3 * spacing)
+        mesh_vertices = _relax(layout, mesh_vertices, mesh_faces, spacing, iterations=8)
+        problem = _closed_surface_problem(mesh_vertices, mesh_faces)
+        if problem is None:
+            break
+        spacing /= 1.5    # a part too thin for the grid: resolve it finer, decimate further
+    else:
+        raise QuadrupedParameterError(
+            f"these parameters make no closed one-piece surface ({problem}); thicken the thinnest part")
 
     labels = label_points(layout, mesh_vertices)
     truth = _measure_truth(layout, mesh_vertices, mesh_faces, labels)
@@ -912,6 +930,27 @@ def _flip_free(vertices, faces, incidence, a, b, middle) -> np.ndarray:
         cosine[moving.sum(axis=1) == 2] = 1.0      # the two faces the collapse removes
         np.minimum.at(worst, edge_index, cosine)
     return worst > 0.3
+
+
+def _closed_surface_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
+    """None if the mesh is closed, consistently wound, outward and one piece; else what is wrong."""
+    if not np.isfinite(vertices).all():
+        return "non-finite vertices"
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    keys = directed[:, 0] * len(vertices) + directed[:, 1]
+    reverse = directed[:, 1] * len(vertices) + directed[:, 0]
+    if len(np.unique(keys)) != len(keys):
+        return "inconsistent winding or a non-manifold edge"
+    if not np.isin(reverse, keys).all():
+        return "holes"
+    adjacency = _vertex_adjacency(faces, len(vertices))
+    parts, _ = sparse.csgraph.connected_components(adjacency, directed=False)
+    if parts != 1:
+        return f"{parts} separate pieces"
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    if np.einsum("ij,ij->i", a, np.cross(b, c)).sum() <= 0:
+        return "inward-facing"
+    return None
 
 
 def _decimate(vertices: np.ndarray, faces: np.ndarray, target: int,

@@ -15,7 +15,7 @@ from allorules.body import UNLABELLED, Body
 from allorules.cli import main
 from allorules.errors import AllorulesError
 from allorules.quadruped import (LIMB_REGIONS, PRESETS, REGION_NAMES, HalfSpace, QuadrupedParameters,
-                                 _layout, clipped_volume, generate_quadruped)
+                                 _closed_surface_problem, _layout, clipped_volume, generate_quadruped)
 
 
 @functools.lru_cache(maxsize=None)
@@ -66,20 +66,32 @@ def test_vertex_count_for_other_presets_at_low_counts():
 
 
 def test_generation_is_deterministic_and_seed_varies_it():
-    first = generate_quadruped("dog", 1500, seed=3)
-    again = generate_quadruped("dog", 1500, seed=3)
+    first = generate_quadruped("dog", 1000, seed=3)
+    again = generate_quadruped("dog", 1000, seed=3)
     np.testing.assert_array_equal(first.vertices, again.vertices)
     np.testing.assert_array_equal(first.faces, again.faces)
     np.testing.assert_array_equal(first.labels, again.labels)
     assert first.truth.as_dict() == again.truth.as_dict()
-    other = generate_quadruped("dog", 1500, seed=4)
+    other = generate_quadruped("dog", 1000, seed=4)
     assert other.parameters != first.parameters
-    assert generate_quadruped("dog", 1500, seed=0).parameters == PRESETS["dog"]
+    assert generate_quadruped("dog", 1000, seed=0).parameters == PRESETS["dog"]
 
 
 def scaled_parameters(preset: str, factor: float) -> dict[str, float]:
     return {f.name: factor * getattr(PRESETS[preset], f.name) for f in dataclasses.fields(QuadrupedParameters)
             if not f.name.endswith(("_angle", "_offset"))}
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_seeded_variants_are_valid_animals(preset):
+    generated = generate_quadruped(preset, 2000, seed=11)
+    assert generated.parameters != PRESETS[preset]
+    assert _closed_surface_problem(generated.vertices, generated.faces) is None
+    for index, name in enumerate(REGION_NAMES):
+        expected = 2 if name in LIMB_REGIONS else 1
+        assert region_components(generated.faces, generated.labels == index) == expected, name
+    truth = generated.truth
+    assert sum(truth.region_volume.values()) == pytest.approx(truth.body_volume, rel=5e-3)
 
 
 def test_result_is_exactly_equivariant_under_power_of_two_scaling():
