@@ -105,3 +105,20 @@ def test_cli_refuses_a_folder_with_files(tmp_path, capsys):
     assert main(["demo", "-o", str(tmp_path), "--quick"]) == 2
     assert "--force" in capsys.readouterr().err
     assert (tmp_path / "keep.txt").read_text() == "mine"
+
+
+def test_measure_writes_a_picture(tmp_path, capsys):
+    """``measure --png``: regions in colour and the load-bearing section marked, without a display."""
+    import trimesh
+
+    from allorules.quadruped import generate_quadruped
+
+    horse = generate_quadruped("horse", 600)
+    trimesh.Trimesh(horse.vertices, horse.faces, process=False).export(tmp_path / "horse.obj")
+    (tmp_path / "horse.labels.json").write_text(json.dumps(horse.labels_document()))
+    picture = tmp_path / "measured.png"
+    assert main(["measure", str(tmp_path / "horse.obj"), "--segmentation", str(tmp_path / "horse.labels.json"),
+                 "--png", str(picture)]) == 0
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["measure", str(tmp_path / "horse.obj"), "--png", str(tmp_path / "measured.jpg")]) == 2
+    assert ".png" in capsys.readouterr().err

@@ -13,6 +13,8 @@ import logging
 import math
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import AllorulesError, MeasurementError, SegmentationError
 from .segment import add_direction_arguments, load_body
 
@@ -37,6 +39,8 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--ruleset", default=DEFAULT_RULESET, metavar="NAME",
                         help=f"ruleset whose quantities to measure (default {DEFAULT_RULESET}); a name or a .yaml path")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument("--png", metavar="FILE.png",
+                        help="also write a picture: the regions in colour and the load-bearing section marked")
     add_direction_arguments(parser)
     add_plugin_argument(parser)
     parser.set_defaults(run=run)
@@ -76,6 +80,8 @@ def run(arguments: argparse.Namespace) -> int:
 
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
+    if arguments.png:
+        _check_picture_path(arguments.png, arguments.mesh)
     body, source = segmented_body(arguments)
     missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]
     if missing:
@@ -102,6 +108,9 @@ def run(arguments: argparse.Namespace) -> int:
             raise MeasurementError(f"rule {rule.id!r}: {error}") from None
         result["rules"].append({"id": rule.id, "region": rule.region, "measure": rule.measure,
                                 "exponent": rule.exponent, "value": value})
+    if arguments.png:
+        _write_picture(body, arguments.png, result)
+        log.info("wrote %s", arguments.png)
     if arguments.json:
         print(json.dumps(result))
     else:
@@ -118,3 +127,31 @@ def _finite(value: float, what: str) -> float:
     if not math.isfinite(value):
         raise MeasurementError(f"{what} came out as {value}; the mesh or its segmentation cannot be measured")
     return value
+
+
+def _check_picture_path(path: str, mesh: str) -> None:
+    picture = Path(path)
+    if picture.suffix.lower() != ".png":
+        raise MeasurementError(f"{picture}: --png writes a PNG picture; name it with .png")
+    if picture.exists() and picture.resolve() == Path(mesh).resolve():
+        raise MeasurementError(f"{picture}: refusing to overwrite the input mesh")
+    if not picture.parent.exists():
+        raise MeasurementError(f"{picture.parent}: folder does not exist")
+
+
+def _write_picture(body, path: str, result: dict) -> None:
+    """Side and three-quarter views: regions in colour, the load-bearing section marked."""
+    from .. import measures, render
+
+    annotations = []
+    try:
+        chosen = measures.load_bearing_section(body)
+        annotations.append((np.asarray(chosen.section.loop.points).mean(axis=0), "load-bearing section"))
+    except AllorulesError:
+        pass
+    render.render_views(
+        body.vertices, body.faces, path=path, views=("side", "three-quarter"), frame=body.frame,
+        vertex_colors=render.region_colors(body.labels, body.region_names),
+        legend=render.region_legend(body.labels, body.region_names), annotations=annotations or None,
+        title=f"{Path(result['mesh']).name}: body mass {result['body_mass']:.4g}, peak stress {result['peak_stress']:.4g}",
+    )
