@@ -13,14 +13,17 @@ changes by the step's ratio r and its peak stress σ = M/A stays as it was:
 A ratio beyond 1.1 up (0.9 down) goes in n equal steps r = R^(1/n), the harmonic basis recomputed
 on each step's mesh (warm-started from the previous one), as in the paper.
 
-**Where stress is measured.** The load-bearing cross-section is chosen ONCE, on the input body
-(:func:`allorules.measures.load_bearing_section`: the smallest limb section away from junction
-and tip, or the user's :class:`~allorules.measures.SectionChoice`), and then followed as a
-material band: the same isocontour level of the same limb field on the same vertices
-(:class:`StressGauge`). The mesh keeps its connectivity, so the contour crosses the same edges
-at the same parameters and only moves with them. Stress before and after every trial, step and
-run is therefore measured at the same place on the limb, never re-chosen. (Re-choosing on the
-output is reported separately by the CLI, as an independent check.)
+**Where stress is measured.** The candidate load-bearing cross-sections are chosen ONCE, on the
+input body, by the rule of :func:`allorules.measures.load_bearing_section` (every limb section
+between the junction and tip margins; or only the user's
+:class:`~allorules.measures.SectionChoice`), and then followed as material bands: the same
+isocontour level of the same limb field on the same vertices (:class:`MaterialBand`). The mesh
+keeps its connectivity, so each contour crosses the same edges at the same parameters and only
+moves with them. A is the smallest band's area (:class:`StressGauge`). Stress before and after
+every trial, step and run is therefore measured at the same places on the limbs, never
+re-chosen from new contours; the peak may still move from one band to another if the shape
+change moves it. (Re-choosing from scratch on the output is reported separately, as an
+independent check.)
 
 Mass is the enclosed volume of the capped body (:func:`allorules.measures.body_mass`).
 """
@@ -61,61 +64,114 @@ StressMeasure = Callable[[Body], float]
 
 
 @dataclass(frozen=True)
-class StressGauge:
-    """A load-bearing cross-section fixed to the material: an isocontour of a frozen field.
+class MaterialBand:
+    """One limb cross-section fixed to the material.
 
-    ``field`` lives on the vertices ``vertex_index`` of the limb part (faces ``faces`` in the
-    part's numbering); the section is the closed contour at ``level`` that crosses exactly
-    ``loop_faces``. On a deformed body with the same connectivity the same contour crosses the
-    same edges at the same parameters, so :meth:`area` follows the same place on the limb.
+    Chosen as a closed isocontour of a limb field on one body; kept as the mesh edges it crosses
+    (``edge_start``, ``edge_end``: body vertex indices, in loop order) and where it crosses them
+    (``t``). On a deformed body with the same connectivity, the same contour of the same frozen
+    field crosses the same edges at the same parameters, so the band follows the same place on
+    the limb: its points are p_k = v[edge_start_k] + t_k (v[edge_end_k] − v[edge_start_k]).
     """
 
     region: str
     part: int
-    vertex_index: np.ndarray
-    faces: np.ndarray
-    field: np.ndarray
-    level: float
-    loop_faces: frozenset
+    fraction: float               # along the limb when chosen (0 junction, 1 tip)
+    edge_start: np.ndarray
+    edge_end: np.ndarray
+    t: np.ndarray
+
+    @classmethod
+    def from_loop(cls, region: str, part: int, fraction: float, loop, part_faces: np.ndarray,
+                  part_vertex_index: np.ndarray, field: np.ndarray, part_vertices: np.ndarray) -> "MaterialBand":
+        """Freeze a closed isocontour ``loop`` (of ``field`` at ``loop.level``) of a limb part."""
+        faces = np.asarray(part_faces)[np.asarray(loop.faces)]
+        starts, ends = [], []
+        # Point k ends the segment through face k−1 and starts the one through face k: it lies on
+        # the edge those two faces share.
+        for previous, current in zip(np.roll(faces, 1, axis=0), faces):
+            shared = np.intersect1d(previous, current)
+            if len(shared) != 2:
+                raise MeasurementError(f"a cross-section of {region!r} is not a simple loop; cannot follow it")
+            starts.append(shared[0])
+            ends.append(shared[1])
+        starts, ends = np.asarray(starts), np.asarray(ends)
+        t = (loop.level - field[starts]) / (field[ends] - field[starts])
+        points = part_vertices[starts] + t[:, None] * (part_vertices[ends] - part_vertices[starts])
+        scale = np.ptp(part_vertices, axis=0).max()
+        if not np.allclose(points, loop.points, atol=1e-9 * scale, rtol=0):
+            raise MeasurementError(f"a cross-section of {region!r} could not be frozen to the mesh edges")
+        index = np.asarray(part_vertex_index)
+        return cls(region, part, float(fraction), index[starts], index[ends], t)
+
+    def points(self, vertices: np.ndarray) -> np.ndarray:
+        start, end = vertices[self.edge_start], vertices[self.edge_end]
+        return start + self.t[:, None] * (end - start)
+
+    def area(self, vertices: np.ndarray) -> float:
+        """‖½ Σ p_k × p_{k+1}‖ (METHOD §3), about the loop's mean point for round-off."""
+        points = self.points(np.asarray(vertices))
+        centred = points - points.mean(axis=0)
+        return float(np.linalg.norm(0.5 * np.cross(centred, np.roll(centred, -1, axis=0)).sum(axis=0)))
+
+
+@dataclass(frozen=True)
+class StressGauge:
+    """Peak stress σ = M / A measured at cross-sections frozen to the material.
+
+    Without an override, the bands are every candidate of the automatic rule of
+    :func:`allorules.measures.load_bearing_section` on the body it was chosen on (all limb
+    sections between the junction and tip margins) and A is the smallest of their areas, so the
+    peak moves along the limb if the scaling moves it, while every band stays the same material
+    ring (a min of smooth functions of α, which the root find can bracket). With an override
+    (:class:`allorules.measures.SectionChoice`) the single chosen section is followed.
+    """
+
+    bands: tuple[MaterialBand, ...]
 
     @classmethod
     def choose(cls, body: Body, override=None) -> "StressGauge":
-        """The automatic (or the user's) load-bearing section of ``body``, frozen."""
-        from .measures import limb_sections, load_bearing_section
+        from . import measures
 
-        chosen = load_bearing_section(body, override=override)
-        limb = limb_sections(body, chosen.region)[chosen.part]
-        loop = chosen.section.loop
-        return cls(chosen.region, chosen.part, np.asarray(limb.mesh.vertex_index), np.asarray(limb.mesh.faces),
-                   np.asarray(limb.field, dtype=float), float(loop.level), frozenset(np.asarray(loop.faces).tolist()))
+        def band(region, limb, section) -> MaterialBand:
+            return MaterialBand.from_loop(region, limb.part, section.fraction, section.loop, limb.mesh.faces,
+                                          limb.mesh.vertex_index, np.asarray(limb.field, dtype=float), limb.mesh.vertices)
 
-    def loop(self, vertices: np.ndarray):
-        """The gauge's contour on ``vertices`` (a deformation of the body it was chosen on)."""
-        from .sections import isocontour_loops
+        chosen = measures.load_bearing_section(body, override=override)   # raises the clear errors
+        if override is not None:
+            limb = measures.limb_sections(body, chosen.region)[chosen.part]
+            return cls((band(chosen.region, limb, chosen.section),))
+        bands = []
+        for region in measures.LIMB_REGIONS:
+            if not body.has_region(region) or not body.region_face_mask(region).any():
+                continue
+            for limb in measures.limb_sections(body, region):
+                for section in limb.sections:
+                    if measures.JUNCTION_SKIP <= section.fraction <= 1.0 - measures.TIP_SKIP:
+                        bands.append(band(region, limb, section))
+        return cls(tuple(bands))
 
-        loops = isocontour_loops(np.asarray(vertices)[self.vertex_index], self.faces, self.field, self.level)
-        for loop in loops:
-            if frozenset(np.asarray(loop.faces).tolist()) == self.loop_faces:
-                return loop
-        raise MeasurementError(
-            f"the load-bearing section of {self.region!r} (part {self.part}) cannot be followed on the "
-            "scaled mesh; the mesh lost its connectivity"
-        )
+    def areas(self, vertices: np.ndarray) -> np.ndarray:
+        return np.asarray([band.area(vertices) for band in self.bands])
 
     def area(self, vertices: np.ndarray) -> float:
-        return float(self.loop(vertices).area)
+        return float(np.min(self.areas(vertices)))
 
     def stress(self, body: Body) -> float:
-        """σ = M / A at this section (density cancels; only ratios are used)."""
+        """σ = M / A (density cancels; only ratios are used)."""
         from .measures import body_mass
 
         area = self.area(body.vertices)
         if not area > 0:
-            raise MeasurementError(f"the load-bearing section of {self.region!r} collapsed to zero area")
+            raise MeasurementError("a load-bearing limb section collapsed to zero area")
         return body_mass(body) / area
 
-    def describe(self) -> dict:
-        return {"region": self.region, "part": int(self.part), "level": self.level, "faces": len(self.loop_faces)}
+    def describe(self, vertices: np.ndarray | None = None) -> dict:
+        """Which band carries the peak (on ``vertices``, if given) and how many are followed."""
+        index = int(np.argmin(self.areas(vertices))) if vertices is not None else 0
+        band = self.bands[index]
+        return {"region": band.region, "part": int(band.part), "fraction": round(band.fraction, 4),
+                "bands_followed": len(self.bands)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -356,7 +412,7 @@ def scale_globally(
         stress = gauge.stress
     initial = body
     mass_initial, stress_initial = mass(initial), stress(initial)
-    result = ScalingResult(body=initial, target_mass_ratio=target, section=gauge.describe() if gauge else None)
+    result = ScalingResult(body=initial, target_mass_ratio=target, section=gauge.describe(initial.vertices) if gauge else None)
     basis = None
     current = initial
     for index, ratio in enumerate(ratios):

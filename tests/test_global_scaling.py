@@ -190,3 +190,89 @@ def test_raw_identity_and_direction_of_alpha(bone):
 def _generated(preset: str, vertices: int):
     quadruped = pytest.importorskip("allorules.quadruped")
     return quadruped.generate_quadruped(preset, vertices=vertices)
+
+
+QUADRUPED_VERTICES = 1000
+
+
+@pytest.fixture(scope="module")
+def horse():
+    quadruped = pytest.importorskip("allorules.quadruped")
+    pytest.importorskip("allorules.measures")
+    generated = quadruped.generate_quadruped("horse", vertices=QUADRUPED_VERTICES)
+    return generated, generated.body()
+
+
+def _mean_leg(body, region, quantity):
+    from allorules.measures import limb_sections
+
+    limbs = limb_sections(body, region)
+    if quantity == "length":
+        return float(np.mean([limb.length for limb in limbs]))
+    sections = [limb.section_at(0.5) for limb in limbs]
+    if quantity == "girth":
+        return float(np.mean([section.girth for section in sections]))
+    return float(np.mean([math.sqrt(section.area / math.pi) for section in sections]))   # radius
+
+
+def test_generated_horse_legs_are_measured_as_the_generator_built_them(horse):
+    """The girth exponent below is only meaningful if legs are measured right on the input."""
+    generated, body = horse
+    for region in ("forelimbs", "hindlimbs"):
+        assert _mean_leg(body, region, "length") == pytest.approx(generated.truth.leg_length[region], rel=0.05)
+        assert _mean_leg(body, region, "radius") == pytest.approx(generated.truth.leg_radius[region], rel=0.05)
+
+
+def test_stress_gauge_follows_the_material(horse):
+    from allorules.global_scaling import StressGauge
+    from allorules.measures import SectionChoice, load_bearing_section, peak_stress
+
+    generated, body = horse
+    gauge = StressGauge.choose(body)
+    assert len(gauge.bands) > 4
+    # on the body it was chosen on, the gauge is the measures module's peak stress
+    assert gauge.stress(body) == pytest.approx(peak_stress(body), rel=1e-12)
+    assert gauge.area(body.vertices) == pytest.approx(load_bearing_section(body).area, rel=1e-12)
+    # isometric scaling about any point: areas × s², stress × s (σ = s³M / s²A)
+    q, _ = np.linalg.qr(np.random.default_rng(2).normal(size=(3, 3)))
+    moved = body.with_vertices(2.5 * body.vertices @ q.T + 7.0)
+    np.testing.assert_allclose(gauge.areas(moved.vertices), 6.25 * gauge.areas(body.vertices), rtol=1e-10)
+    assert gauge.stress(moved) == pytest.approx(2.5 * gauge.stress(body), rel=1e-10)
+    # an override follows exactly one section: the user's
+    chosen = load_bearing_section(body, override=SectionChoice("hindlimbs", 0.5))
+    single = StressGauge.choose(body, override=SectionChoice("hindlimbs", 0.5))
+    assert len(single.bands) == 1 and single.area(body.vertices) == pytest.approx(chosen.area, rel=1e-12)
+
+
+def test_body_without_limbs_is_refused(bone):
+    from allorules.errors import MeasurementError
+
+    body, _ = bone
+    with pytest.raises(MeasurementError, match="limb"):
+        scale_globally(body, 2.0, modes=BONE_MODES, use_cache=False)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ratio", [2.0, 0.5])
+def test_generated_horse_mass_ratio(horse, ratio):
+    from allorules.measures import body_mass, peak_stress
+
+    generated, body = horse
+    result = scale_globally(body, ratio, use_cache=False)
+    out = result.body
+    assert result.converged and len(result.steps) == len(step_ratios(ratio))
+    # mass measured independently on the output
+    assert body_mass(out) / body_mass(body) == pytest.approx(ratio, rel=0.01)
+    assert result.mass_ratio == pytest.approx(ratio, rel=0.01)
+    # stress at the frozen material bands (what the run keeps), and re-measured from scratch on
+    # the output by the measures module's automatic rule (new contours, new choice)
+    assert result.stress_ratio == pytest.approx(1.0, abs=0.02)
+    assert peak_stress(out) / peak_stress(body) == pytest.approx(1.0, abs=0.02)
+    # the output is the input's mesh, moved: connectivity, no NaN, (almost) no folded faces
+    assert np.array_equal(out.faces, body.faces) and np.all(np.isfinite(out.vertices))
+    assert result.flipped_faces <= 0.001 * len(body.faces)
+    # allometry: leg girth changes faster than isometric scaling would (exponent > 1/3)
+    for region in ("forelimbs", "hindlimbs"):
+        girth_exponent = math.log(_mean_leg(out, region, "girth") / _mean_leg(body, region, "girth")) / math.log(ratio)
+        assert girth_exponent > 0.4, (region, girth_exponent)
+    assert all((step.alpha > 0) == (ratio > 1) for step in result.steps)
