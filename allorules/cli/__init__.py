@@ -20,6 +20,7 @@ from ..errors import AllorulesError
 COMMAND_MODULES = [
     "spectrum",
     "experiment",
+    "scale",
     "rulesets",
     "plugins",
     "segment",
