@@ -276,3 +276,72 @@ def test_generated_horse_mass_ratio(horse, ratio):
         girth_exponent = math.log(_mean_leg(out, region, "girth") / _mean_leg(body, region, "girth")) / math.log(ratio)
         assert girth_exponent > 0.4, (region, girth_exponent)
     assert all((step.alpha > 0) == (ratio > 1) for step in result.steps)
+
+
+# ---------------------------------------------------------------------------------------------
+# The scale command
+
+
+@pytest.fixture
+def bone_file(tmp_path):
+    import trimesh
+
+    vertices, faces, _ = make_bone()
+    path = tmp_path / "bone.obj"
+    trimesh.Trimesh(vertices, faces, process=False).export(path)
+    return path
+
+
+def test_cli_raw_alpha_writes_mesh_and_report(bone_file, tmp_path, capsys):
+    import json
+
+    import trimesh
+
+    from allorules.cli import main
+
+    out, report = tmp_path / "thick.obj", tmp_path / "thick.json"
+    assert main(["scale", str(bone_file), "--global", "--alpha", "0.1", "--scale", "1.0", "--modes", str(BONE_MODES),
+                 "--no-cache", "-o", str(out), "--report", str(report)]) == 0
+    written = json.loads(report.read_text())
+    assert written["mode"] == "global-raw" and written["alpha"] == 0.1 and written["converged"] is True
+    assert written["mass_ratio"] > 1.0
+    mesh = trimesh.load(out, process=False)
+    source = trimesh.load(bone_file, process=False)
+    assert np.array_equal(mesh.faces, source.faces) and np.all(np.isfinite(mesh.vertices))
+    assert "mass ×" in capsys.readouterr().out
+    # never over an existing file without --force, never over the input
+    assert main(["scale", str(bone_file), "--global", "--alpha", "0.1", "-o", str(out)]) == 2
+    assert main(["scale", str(bone_file), "--global", "--alpha", "0.1", "-o", str(bone_file), "--force"]) == 2
+    assert "input" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--global", "--mass-ratio", "0"], "positive"),
+    (["--global", "--mass-ratio", "-3"], "positive"),
+    (["--global", "--mass-ratio", "5000"], "absurd"),
+    (["--global", "--mass-ratio", "0.0001"], "absurd"),
+    (["--global"], "exactly one"),
+    (["--global", "--mass-ratio", "2", "--alpha", "0.1"], "exactly one"),
+    (["--global", "--mass-ratio", "2", "--scale", "2"], "--scale goes with --alpha"),
+    (["--mass-ratio", "2"], "choose the kind"),
+    (["--global", "--mass-ratio", "2", "--section", "legs"], "REGION:FRACTION"),
+])
+def test_cli_refuses_bad_requests(bone_file, tmp_path, capsys, options, message):
+    from allorules.cli import main
+
+    out = tmp_path / "out.obj"
+    assert main(["scale", str(bone_file), *options, "-o", str(out)]) != 0
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_cli_mass_ratio_without_limbs_fails_clearly(bone_file, tmp_path, capsys):
+    """A bone is no quadruped: no limb to carry load, so no stress: a clear error, no mesh."""
+    from allorules.cli import main
+
+    out = tmp_path / "out.obj"
+    assert main(["scale", str(bone_file), "--global", "--mass-ratio", "2", "--modes", str(BONE_MODES),
+                 "--no-cache", "-o", str(out)]) != 0
+    error = capsys.readouterr().err
+    assert error.startswith("allorules scale: error:") and len(error.strip().splitlines()) == 1
+    assert not out.exists()
