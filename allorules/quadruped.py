@@ -16,7 +16,9 @@ legs at z > 0). Units are whatever the parameters are in; presets are roughly me
 Regions are PLANAR CUTS in space, all of them planes that contain the Z direction (their normals
 have no Z component); a point's region is the first that claims it, in this order:
 
-- tail:      behind the plane x = x_tail, the tangent plane at the rear-most point of the abdomen;
+- tail:      beyond a plane perpendicular to the tail axis, placed where the whole tail section
+             is behind x = x_tail (the tangent plane at the rear-most point of the abdomen) by
+             at least the blend radius: a clean circular cut outside the rump's fillet;
 - head:      beyond the plane through the neck's head end, perpendicular to the neck axis;
 - neck:      beyond the tangent plane of the chest where the neck leaves it (perpendicular to the
              neck axis; the chest lies wholly behind it);
@@ -438,6 +440,14 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     tail_tip = tail_root + t * (p.tail_length + 1.5 * p.tail_radius)
     primitives.append(_cone_primitive("tail", tail_root, tail_tip, p.tail_radius,
                                       0.55 * p.tail_radius, k_limb))
+    # the tail cut ⟂ t at distance s along the axis, where the section (radius ≤ r, reaching
+    # r sin γ forwards) lies behind x_tail by k: x_root − s cos γ + r sin γ ≤ x_tail − k
+    gamma = math.radians(p.tail_angle)
+    tail_cut_distance = (tail_root[0] - x_tail + p.tail_radius * abs(math.sin(gamma)) + k_limb) / math.cos(gamma) \
+        if math.cos(gamma) > 1e-6 else math.inf
+    if not tail_cut_distance <= 0.7 * (p.tail_length + 1.5 * p.tail_radius):
+        raise QuadrupedParameterError("the tail hangs too steeply to be cut off cleanly: lower tail_angle")
+    tail_cut = tail_root + tail_cut_distance * t
     if tail_tip[1] - 0.55 * p.tail_radius <= 0.05 * p.hindleg_length:
         raise QuadrupedParameterError("the tail reaches the ground: shorten it or lower tail_angle")
 
@@ -464,7 +474,8 @@ def _layout(p: QuadrupedParameters) -> _Layout:
 
     x_axis, y_axis = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     cuts = (
-        CutPlane("tail", np.array([x_tail, 0, 0]), -x_axis),
+        CutPlane("tail", tail_cut, t),
+        CutPlane("tail-rump", np.array([x_tail, 0, 0]), -x_axis),
         CutPlane("head", neck_end, u),
         CutPlane("neck", neck_base, u),
         CutPlane("forelimbs", np.array([0, y_fore, 0]), -y_axis),
@@ -479,7 +490,7 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     not_neck = _below(u, neck_base)
     trunk = (not_tail, not_head, not_neck)
     cells = {
-        "tail": ((_below(x_axis, [x_tail, 0, 0]),),),
+        "tail": ((_below(x_axis, [x_tail, 0, 0]), _beyond(t, tail_cut)),),
         "head": ((not_tail, _beyond(u, neck_end)),),
         "neck": ((not_tail, not_head, _beyond(u, neck_base)),),
         "forelimbs": (trunk + (_below(y_axis, [0, y_fore, 0]), _beyond(x_axis, [fore_back, 0, 0])),),
@@ -489,7 +500,8 @@ def _layout(p: QuadrupedParameters) -> _Layout:
                            _below(y_axis, [0, y_fore, 0]))),
         "abdomen": (trunk + (_below(x_axis, [split_x, 0, 0]), _beyond(y_axis, [0, y_hind, 0])),
                     trunk + (_below(x_axis, [split_x, 0, 0]), _beyond(x_axis, [hind_front, 0, 0]),
-                             _below(y_axis, [0, y_hind, 0]))),
+                             _below(y_axis, [0, y_hind, 0])),
+                    (_below(x_axis, [x_tail, 0, 0]), _below(t, tail_cut))),   # the tail's root
     }
     return _Layout(p, tuple(primitives), cuts, cells, legs,
                    {"forelimbs": y_fore, "hindlimbs": y_hind},

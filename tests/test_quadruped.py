@@ -132,6 +132,8 @@ def test_overrides_change_the_shape_and_bad_input_is_refused():
         generate_quadruped("horse", 10)
     with pytest.raises(AllorulesError, match="leg_spacing"):
         generate_quadruped("horse", 1500, leg_spacing=2.0)
+    with pytest.raises(AllorulesError, match="tail_angle"):
+        generate_quadruped("horse", 1500, tail_angle=88.0)
     with pytest.raises(AllorulesError, match="positive"):
         generate_quadruped("horse", 1500, neck_length=-1.0)
 
