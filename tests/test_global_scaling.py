@@ -345,3 +345,20 @@ def test_cli_mass_ratio_without_limbs_fails_clearly(bone_file, tmp_path, capsys)
     error = capsys.readouterr().err
     assert error.startswith("allorules scale: error:") and len(error.strip().splitlines()) == 1
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_generated_horse_alpha_direction(horse):
+    """What α > 0 does to a body (docs/method.md quotes these numbers): legs thicken relative to
+    their length and the peak stress drops; α < 0 the reverse."""
+    from allorules.measures import peak_stress
+
+    generated, body = horse
+    for alpha in (0.1, -0.1):
+        out = body.with_vertices(scale_globally_raw(body, alpha, 1.0, use_cache=False).vertices)
+        for region in ("forelimbs", "hindlimbs"):
+            shape = (_mean_leg(out, region, "girth") / _mean_leg(out, region, "length")) / (
+                _mean_leg(body, region, "girth") / _mean_leg(body, region, "length"))
+            assert (shape > 1.2) if alpha > 0 else (shape < 0.8), (alpha, region, shape)
+        stress = peak_stress(out) / peak_stress(body)
+        assert (stress < 0.8) if alpha > 0 else (stress > 1.25), (alpha, stress)
