@@ -24,8 +24,6 @@ All writers are atomic (temporary file + ``os.replace``).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +31,7 @@ import scipy.sparse as sparse
 import yaml
 
 from .body import UNLABELLED, Body
+from .export import atomic_write
 from .errors import RulesetError, SegmentationError, SourceLocation
 from .laplacian import face_areas
 
@@ -46,16 +45,7 @@ class MergeFileError(SegmentationError, RulesetError):
 
 def write_atomic(path: str | Path, text: str) -> None:
     """Write text to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
-        raise
+    atomic_write(path, text)
 
 
 # ---------------------------------------------------------------- labels JSON
