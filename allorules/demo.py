@@ -42,9 +42,10 @@ DEFAULT_FOLDER = "allorules-demo"
 DEFAULT_PRESET = "horse"
 DEFAULT_RULESET = "quadruped"
 RATIOS = (0.5, 2.0)
-# Sizes chosen so that the demo finishes in a few minutes on 2 cores (measured: docs/demo.md).
-DEFAULT_VERTICES = 4000
-DEFAULT_MODES = 200
+# Sizes chosen so that the demo finishes in minutes on 2 cores (measured: docs/demo.md); at most
+# eigensolver.DENSE_LIMIT (2500) vertices the basis is one dense solve, which is robust and fast.
+DEFAULT_VERTICES = 2500
+DEFAULT_MODES = 150
 QUICK_VERTICES = 1500
 QUICK_MODES = 60
 MODES = ("global", "biology")
