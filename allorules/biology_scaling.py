@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -70,6 +71,8 @@ class RulesetStep:
     stress_ratio: float | None
     flipped_faces: int
     modes: int
+    basis_seconds: float = 0.0       # wall time of the step's basis
+    solve_seconds: float = 0.0       # wall time of the step's solve (trial meshes and their measures)
 
     def as_dict(self) -> dict:
         return {
@@ -85,6 +88,8 @@ class RulesetStep:
             "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
             "flipped_faces": int(self.flipped_faces),
             "modes": int(self.modes),
+            "basis_seconds": round(float(self.basis_seconds), 3),
+            "solve_seconds": round(float(self.solve_seconds), 3),
         }
 
 
@@ -229,7 +234,9 @@ def scale_with_ruleset(
 
     current, basis, jacobian = initial, None, None
     for index, ratio in enumerate(ratios):
+        started = time.perf_counter()
         basis = _basis_for(current, modes, basis, use_cache)
+        solving = time.perf_counter()
         try:
             solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian)
         except ScalingError as error:
@@ -240,6 +247,7 @@ def scale_with_ruleset(
             result.messages.append(message)
             raise ScalingError(message, closest=result) from None
         jacobian = solution.jacobian
+        solved = time.perf_counter()
         following = _fresh(solution.body)
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
         mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
@@ -249,6 +257,7 @@ def scale_with_ruleset(
             residuals=solution.residuals, energy=solution.energy, evaluations=solution.evaluations,
             status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
             flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
+            basis_seconds=solving - started, solve_seconds=solved - solving,
         ))
         log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
                   solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)

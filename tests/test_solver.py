@@ -122,3 +122,17 @@ def test_identity_step_stays_put(animal, registry):
     assert solution.evaluations == 1
     assert solution.scale == 1.0 and solution.alpha0 == 0.0 and not any(solution.alphas.values())
     assert np.array_equal(solution.body.vertices, body.vertices)
+
+
+def test_step_does_not_depend_on_units_or_place(animal, registry):
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    offset = np.array([40.0, -7.0, 3.0])
+    moved = Body(100.0 * body.vertices + offset, body.faces, body.labels, body.region_names, body.frame)
+    moved_basis = compute_basis(moved.vertices, moved.faces, MODES, use_cache=False)
+    a = solve_step(body, basis, ruleset, registry, 0.9, measure=_measure(registry, body))
+    b = solve_step(moved, moved_basis, ruleset, registry, 0.9, measure=_measure(registry, moved))
+    assert b.scale == pytest.approx(a.scale, abs=1e-6)
+    for region in a.alphas:
+        assert b.alphas[region] == pytest.approx(a.alphas[region], abs=1e-5)
+    np.testing.assert_allclose(b.body.vertices, 100.0 * a.body.vertices + offset, atol=1e-5 * 100 * np.ptp(body.vertices))

@@ -1,0 +1,72 @@
+"""How long a whole biology-aware run takes: R = 2 with the ``quadruped`` ruleset.
+
+Run: .venv/bin/python benchmarks/bench_scale.py [--modes M] [--vertices N] [--skip-real]
+
+Two animals of about 8,400 vertices: the real horse of /work/shared/meshes (8,431 vertices,
+labelled automatically; skipped when the folder is absent) and the generated horse. Prints wall
+and CPU time of the run split into bases and solves, trials per step and the achieved figures.
+The basis cache is off, so every basis is computed. Record results in docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
+
+from allorules.biology_scaling import scale_with_ruleset  # noqa: E402
+from allorules.body import Body  # noqa: E402
+from allorules.plugins import registry_for  # noqa: E402
+from allorules.rules import load_ruleset  # noqa: E402
+
+MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+
+def run(name: str, body: Body, modes: int | None) -> None:
+    registry = registry_for(None)
+    ruleset = load_ruleset("quadruped", registry)
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = scale_with_ruleset(body, ruleset, 2.0, registry=registry, modes=modes, use_cache=False)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    bases = sum(step.basis_seconds for step in result.steps)
+    solves = sum(step.solve_seconds for step in result.steps)
+    trials = [step.evaluations for step in result.steps]
+    print(f"{name}: {len(body.vertices)} vertices, {result.steps[0].modes} modes, {len(result.steps)} steps")
+    print(f"  wall {wall:.1f} s (bases {bases:.1f} s, solves {solves:.1f} s), cpu {cpu:.1f} s, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"  trials per step {trials} (total {sum(trials)})")
+    print(f"  converged {result.converged}, mass ratio {result.mass_ratio:.4f}, stress ratio "
+          f"{result.stress_ratio if result.stress_ratio is None else round(result.stress_ratio, 4)}, "
+          f"flipped faces {result.flipped_faces}")
+    for rule in result.rules:
+        print(f"  {rule.id:16s} target {rule.exponent:.3f} achieved {rule.achieved_exponent:.3f}")
+    for message in result.messages:
+        print(f"  ! {message}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--modes", type=int, default=None, help="basis size (default 1000)")
+    parser.add_argument("--vertices", type=int, default=8400, help="vertices of the generated horse")
+    parser.add_argument("--skip-real", action="store_true")
+    parser.add_argument("--skip-generated", action="store_true")
+    arguments = parser.parse_args()
+    if not arguments.skip_real and (MESHES / "horse.obj").exists():
+        from allorules.preparation import prepare_mesh
+        from allorules.segmentation import label_quadruped
+
+        prepared = prepare_mesh(MESHES / "horse.obj")
+        started = time.perf_counter()
+        body = label_quadruped(Body(prepared.vertices, prepared.faces))
+        print(f"real horse labelled in {time.perf_counter() - started:.1f} s")
+        run("real horse (shared/meshes/horse.obj)", body, arguments.modes)
+    if not arguments.skip_generated:
+        from allorules.quadruped import generate_quadruped
+
+        run("generated horse", generate_quadruped("horse", vertices=arguments.vertices).body(), arguments.modes)
+
+
+if __name__ == "__main__":
+    main()
