@@ -543,8 +543,9 @@ def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers:
                     report = {"status": STATUS_FAILED, "error": f"{type(error).__name__}: {error}"}
                 finished(job, report)
     except BaseException:
+        processes = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
-        for process in list(getattr(pool, "_processes", {}).values()):   # stop jobs in flight now
+        for process in processes:   # stop the jobs in flight now: they are redone on the next run
             process.terminate()
         raise
     pool.shutdown(wait=True)
