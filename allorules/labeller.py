@@ -467,7 +467,7 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     span = float(distance[near_forelimb].min()) if len(near_forelimb) else float(distance[finite].max())
     levels = np.linspace(0, span, PROFILE_LEVELS + 2)[1:-1]
     field = np.where(finite, distance, np.inf)
-    perimeter, centroids = isocontour_profile(vertices, faces, field, levels)
+    perimeter, _ = isocontour_profile(vertices, faces, field, levels)
     perimeter = np.convolve(perimeter, np.ones(5) / 5, mode="same")
     top = perimeter.max()
     if not top > 0:
@@ -493,39 +493,22 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     if base_level is None:
         return None, None
     tip = rest[tip_local]
-    # Neck axis: the principal direction of the isocontour centroids between the two cuts
-    # (weighted by perimeter), pointing towards the head. Both cuts are planes across it, as a
-    # tape goes around a neck; an isocontour of the distance from the muzzle runs obliquely
-    # across the neck (further along the jaw than along the poll) and would take the throat
-    # into the head.
-    span_levels = np.arange(head_level, base_level + 1)
-    points = centroids[span_levels]
-    weights = perimeter[span_levels]
-    if len(span_levels) < 3:
-        return None, None
-    centre = np.average(points, axis=0, weights=weights)
-    axis = np.linalg.svd((points - centre) * np.sqrt(weights)[:, None])[2][0]
-    if (points[0] - points[-1]) @ axis < 0:
-        axis = -axis
-    # Head cut: across the axis through the centre of the isocontour at the back of the skull.
-    # Neck base: across the axis at the rear-most point of the flare's isocontour, so that the
-    # whole flare into the chest lies behind it (the generator's neck plane is the chest's
-    # tangent plane in the same way).
     cuts = []
-    for level, place in ((head_level, 0.5), (base_level, 0.0)):
-        points = _contour_points(vertices, faces, field, levels[level])
-        if len(points) < 3:
+    for level in (levels[head_level], levels[base_level]):
+        plane = _contour_plane(vertices, faces, field, level, vertices[tip])
+        if plane is None:
             return None, None
-        along = points @ axis
-        cuts.append((points[np.argmin(np.abs(along - np.quantile(along, place)))], axis))
+        cuts.append(plane)
     return cuts[0], cuts[1]
 
 
-def _contour_points(vertices, faces, field, level) -> np.ndarray:
-    """Points where the isocontour of ``field`` at ``level`` crosses the mesh's edges."""
+def _contour_plane(vertices, faces, field, level, towards):
+    """Best-fit plane (point, unit normal towards ``towards``) of the isocontour at ``level``."""
     values = field[faces]
     above = values > level
     crossing = (above.sum(axis=1) == 1) | (above.sum(axis=1) == 2)
+    if crossing.sum() < 3:
+        return None
     corners = vertices[faces[crossing]]
     v = values[crossing]
     points = []
@@ -533,4 +516,11 @@ def _contour_points(vertices, faces, field, level) -> np.ndarray:
         crosses = (v[:, a] > level) != (v[:, b] > level)
         t = (level - v[crosses, a]) / (v[crosses, b] - v[crosses, a])
         points.append(corners[crosses, a] + t[:, None] * (corners[crosses, b] - corners[crosses, a]))
-    return np.concatenate(points) if points else np.zeros((0, 3))
+    points = np.concatenate(points)
+    centre = points.mean(axis=0)
+    normal = np.linalg.svd(points - centre)[2][2]
+    if (towards - centre) @ normal < 0:
+        normal = -normal
+    return centre, normal
+
+
