@@ -23,7 +23,8 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 def generated():
     """Generated quadrupeds with their truth, ~2000 vertices (the generator is the slow part)."""
     quadruped = pytest.importorskip("allorules.quadruped")
-    return {preset: quadruped.generate_quadruped(preset, vertices=2000, seed=0) for preset in ("horse", "giraffe")}
+    return {preset: quadruped.generate_quadruped(preset, vertices=2000, seed=0)
+            for preset in ("horse", "giraffe", "dog", "elephant")}
 
 
 def truth_body(animal) -> Body:
@@ -200,6 +201,12 @@ def test_non_quadrupeds_are_refused_clearly(sphere, capsule):
         "known shortfall: 0.92 measured; the head cut sits at the isocontour of the skull's back, "
         "~3% of the area into the generator's neck (docs/segmentation.md)"))),
     "giraffe",
+    pytest.param("dog", marks=pytest.mark.xfail(strict=True, reason=(
+        "known shortfall: 0.82 measured; the dog's neck is thicker than its head, the perimeter "
+        "profile has no valley, so head and neck go to the chest (docs/segmentation.md)"))),
+    pytest.param("elephant", marks=pytest.mark.xfail(strict=True, reason=(
+        "known shortfall: 0.80 measured; feet are right now, but no neck is found behind the "
+        "trunk and the big head, so head and neck go to the chest (docs/segmentation.md)"))),
 ])
 def test_labels_agree_with_generator_truth(generated, preset):
     animal = generated[preset]
@@ -214,6 +221,22 @@ def test_labels_agree_with_generator_truth(generated, preset):
     for limb in limbs:
         leg_agreement = area_agreement(labelled.labels == limb, truth.labels == limb, animal.vertices, animal.faces)
         assert leg_agreement >= 0.98
+
+
+def test_elephant_trunk_is_not_a_foot(generated):
+    """The trunk tip hangs low near the head end; the feet are the four that stand on the ground."""
+    animal = generated["elephant"]
+    truth = truth_body(animal)
+    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    np.testing.assert_allclose(labelled.frame.up, [0, 1, 0], atol=0.05)
+    np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0], atol=0.05)
+    limbs = np.isin(labelled.labels, [segmentation.QUADRUPED_REGIONS.index(n) for n in ("forelimbs", "hindlimbs")])
+    head = truth.region_mask("head")
+    mass = lumped_mass(animal.vertices, animal.faces)
+    assert mass[head & limbs].sum() < 0.01 * mass[head].sum()
+    for limb in ("forelimbs", "hindlimbs"):
+        index = segmentation.QUADRUPED_REGIONS.index(limb)
+        assert area_agreement(labelled.labels == index, truth.labels == index, animal.vertices, animal.faces) >= 0.97
 
 
 @pytest.mark.parametrize("transform", ["rotated", "mirrored", "tiny", "huge"])
@@ -284,6 +307,18 @@ def test_real_quadrupeds_are_labelled(name):
     for limb in ("forelimbs", "hindlimbs"):
         parts = connected_parts(graph, labelled.region_mask(limb))
         assert parts.max() + 1 == 2, f"{name}: {limb} in {parts.max() + 1} parts"
+
+
+@pytest.mark.shared_meshes
+@pytest.mark.slow
+def test_real_labels_do_not_depend_on_a_random_rotation():
+    body = _load_real("wolf")
+    reference = segmentation.label_quadruped(body)
+    for seed in (11, 12):
+        matrix = random_rotation(seed)
+        turned = segmentation.label_quadruped(Body(body.vertices @ matrix.T, body.faces))
+        assert area_agreement(turned.labels, reference.labels, body.vertices, body.faces) >= 0.99
+        np.testing.assert_allclose(turned.frame.up, matrix @ reference.frame.up, atol=0.02)
 
 
 @pytest.mark.shared_meshes
