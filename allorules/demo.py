@@ -43,11 +43,11 @@ DEFAULT_PRESET = "horse"
 DEFAULT_RULESET = "quadruped"
 RATIOS = (0.5, 2.0)
 # Sizes chosen so that the demo finishes in minutes on 2 cores (measured: docs/demo.md); at most
-# eigensolver.DENSE_LIMIT (2500) vertices the basis is one dense solve, which is robust and fast.
-DEFAULT_VERTICES = 2500
-DEFAULT_MODES = 150
-QUICK_VERTICES = 1500
-QUICK_MODES = 60
+# 2500 vertices (eigensolver.DENSE_LIMIT) the basis is one dense solve; 2500 vertices took ~10 CPU-minutes.
+DEFAULT_VERTICES = 1500
+DEFAULT_MODES = 60
+QUICK_VERTICES = 1000
+QUICK_MODES = 30
 MODES = ("global", "biology")
 MODE_TITLES = {"global": "global", "biology": "biology-aware"}
 

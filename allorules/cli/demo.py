@@ -33,7 +33,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         f"{QUICK_VERTICES} with --quick)")
     parser.add_argument("--modes", type=int, metavar="M",
                         help=f"harmonic basis size (default {DEFAULT_MODES}, {QUICK_MODES} with --quick)")
-    parser.add_argument("--quick", action="store_true", help="a coarser animal and fewer modes: under a minute")
+    parser.add_argument("--quick", action="store_true", help="a coarser animal and fewer modes")
     parser.add_argument("--force", action="store_true", help="write into -o DIR even if it holds files (overwriting them)")
     parser.set_defaults(run=run)
 
