@@ -4,11 +4,29 @@
 symmetric PSD) and the lumped mass ``D`` (its diagonal), it returns the ``count`` smallest
 eigenvalues in ascending order and D-orthonormal eigenvectors (Hᵀ D H = I).
 
-Reference implementation: dense LAPACK for small meshes, scipy's shift-invert Lanczos
-otherwise. Correct, not fast; the fast solver replaces the large-mesh path.
+Methods:
+
+- ``"dense"``: LAPACK on the full matrices, for small meshes.
+- ``"bands"`` (spectrum slicing, Vallet & Lévy 2008): the spectrum is cut into consecutive
+  bands of ~``band_size`` eigenpairs. Each band factorises ``L − σD`` once (sparse LU, symmetric
+  ordering, no off-diagonal pivoting) and runs a thick-restarted block Krylov iteration with the
+  shift-invert operator ``S = (L − σD)⁻¹ D`` followed by Rayleigh–Ritz. The same factorisation
+  gives the inertia of ``L − σD`` (Sylvester's law: the number of negative pivots is the number
+  of eigenvalues below σ), so every band *knows* how many eigenpairs lie below its shift and the
+  solver never misses or duplicates one; band edges are placed in the widest spectral gap near
+  the top of a band so that a cluster of (nearly) repeated eigenvalues is never split.
+  Warm start (``initial``): the previous basis's vectors, sorted by their new Rayleigh quotients,
+  seed each band instead of random vectors; the band then converges in one or two sweeps.
+- ``"eigsh"``: scipy's shift-invert Lanczos over the whole range, the reference.
+
+``terminal_progress`` makes a tqdm bar callback when stderr is a terminal (``None`` otherwise).
 """
 from __future__ import annotations
 
+import logging
+import math
+import sys
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -16,7 +34,13 @@ import scipy.linalg
 import scipy.sparse as sparse
 import scipy.sparse.linalg
 
+log = logging.getLogger(__name__)
+
 DENSE_LIMIT = 2500
+BAND_SIZE = 120                   # eigenpairs accepted per band (about)
+RESIDUAL_TOLERANCE = 1e-9        # ‖L h − λ D h‖_{D⁻¹} / max(λ, λ_floor) for an accepted pair
+
+Progress = Callable[[int, int], None]
 
 
 def _normalise_signs(vectors: np.ndarray) -> np.ndarray:
@@ -27,37 +51,409 @@ def _normalise_signs(vectors: np.ndarray) -> np.ndarray:
     return vectors * signs
 
 
+def terminal_progress(description: str) -> Progress | None:
+    """A ``progress(done, total)`` callback drawing a tqdm bar on stderr, or ``None`` when
+    stderr is not a terminal (pipes, CI, logs stay quiet)."""
+    stream = sys.stderr
+    if not (hasattr(stream, "isatty") and stream.isatty()):
+        return None
+    from tqdm import tqdm
+
+    bar: list = []
+
+    def progress(done: int, total: int) -> None:
+        if not bar:
+            bar.append(tqdm(total=total, desc=description, unit="modes", file=stream, leave=False))
+        current = bar[0]
+        current.total = total
+        current.update(max(0, min(done, total) - current.n))
+        if done >= total:
+            current.close()
+
+    return progress
+
+
 def smallest_eigenpairs(
     stiffness: sparse.spmatrix,
     mass: np.ndarray,
     count: int,
     *,
     initial: np.ndarray | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
+    method: str = "auto",
+    band_size: int = BAND_SIZE,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``count`` smallest eigenpairs of ``stiffness h = λ diag(mass) h``.
 
-    ``initial`` (an earlier basis of a nearby mesh) may be used to speed up the solve;
-    ``progress(done, total)`` is called as eigenpairs converge. Returns ``(eigenvalues,
-    eigenvectors)`` with eigenvalues ascending and ``vectors.T @ diag(mass) @ vectors = I``.
+    ``initial`` (an earlier basis of a nearby mesh with the same connectivity, (n, m)) speeds
+    up the solve; ``progress(done, total)`` is called as eigenpairs are accepted. ``method`` is
+    ``"auto"`` (dense for small meshes, else bands), ``"dense"``, ``"bands"`` or ``"eigsh"``.
+    Returns ``(eigenvalues, eigenvectors)`` with eigenvalues ascending and
+    ``vectors.T @ diag(mass) @ vectors = I``; each eigenvector's largest-magnitude entry is
+    positive.
     """
     n = stiffness.shape[0]
     if not 1 <= count <= n:
         raise ValueError(f"count must be between 1 and {n}, got {count}")
-    if n <= DENSE_LIMIT or count >= n - 1:
+    mass = np.asarray(mass, dtype=np.float64)
+    if method == "auto":
+        method = "dense" if n <= DENSE_LIMIT or count >= n // 3 else "bands"
+    if method == "dense" or count >= n - 1:
         eigenvalues, vectors = scipy.linalg.eigh(
             stiffness.toarray(), np.diag(mass), subset_by_index=[0, count - 1]
         )
+    elif method == "eigsh":
+        eigenvalues, vectors = _eigsh(stiffness, mass, count)
+    elif method == "bands":
+        if initial is not None and (initial.ndim != 2 or initial.shape[0] != n):
+            initial = None
+        try:
+            eigenvalues, vectors = _spectrum_slicing(
+                stiffness, mass, count, initial=initial, progress=progress, band_size=band_size
+            )
+        except np.linalg.LinAlgError as error:
+            # Never return an incomplete basis: fall back to one Lanczos run over everything.
+            log.warning("spectrum slicing failed (%s); using the reference solver", error)
+            eigenvalues, vectors = _eigsh(stiffness, mass, count)
     else:
-        # Shift slightly below zero so that the factorisation of L − σD is non-singular.
-        sigma = -1e-8 * float(stiffness.diagonal().max() / mass.max())
-        eigenvalues, vectors = scipy.sparse.linalg.eigsh(
-            stiffness.tocsc(), k=count, M=sparse.diags(mass).tocsc(), sigma=sigma, which="LM"
-        )
-        order = np.argsort(eigenvalues)
-        eigenvalues, vectors = eigenvalues[order], vectors[:, order]
+        raise ValueError(f"unknown method {method!r}: use auto, dense, bands or eigsh")
     if progress is not None:
         progress(count, count)
-    # Re-normalise in the D-inner product (eigsh/eigh already do; this guards round-off).
+    # Re-normalise in the D-inner product (the solvers already do; this guards round-off).
     norms = np.sqrt(np.einsum("ij,i,ij->j", vectors, mass, vectors))
-    return eigenvalues, _normalise_signs(vectors / norms)
+    vectors /= norms
+    return eigenvalues, _normalise_signs(vectors)
+
+
+def _eigsh(stiffness: sparse.spmatrix, mass: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Reference: one shift-invert Lanczos run for all ``count`` pairs (scipy/ARPACK)."""
+    # Shift slightly below zero so that the factorisation of L − σD is non-singular.
+    sigma = -1e-8 * float(stiffness.diagonal().max() / mass.max())
+    eigenvalues, vectors = scipy.sparse.linalg.eigsh(
+        stiffness.tocsc(), k=count, M=sparse.diags(mass).tocsc(), sigma=sigma, which="LM"
+    )
+    order = np.argsort(eigenvalues)
+    return eigenvalues[order], vectors[:, order]
+
+
+# --------------------------------------------------------------------------------------------
+# Spectrum slicing
+
+
+@dataclass
+class _ShiftedFactor:
+    """A factorisation of L − σD: its shift, a solver, and how many eigenvalues lie below σ."""
+
+    shift: float
+    solve: Callable[[np.ndarray], np.ndarray]
+    below: int
+
+
+def _factorise(stiffness: sparse.csc_matrix, mass_matrix: sparse.csc_matrix, shift: float) -> _ShiftedFactor:
+    """Sparse LU of L − σD with a symmetric ordering and diagonal pivots only, so that
+    L − σD = Pᵀ (L̂ diag(d) L̂ᵀ) P and, by Sylvester's law of inertia, the number of negative
+    pivots d is the number of eigenvalues of L h = λ D h below σ."""
+    scale = abs(shift) + float(stiffness.diagonal().max() / mass_matrix.diagonal().max())
+    for attempt in range(6):
+        try:
+            factor = scipy.sparse.linalg.splu(
+                (stiffness - shift * mass_matrix).tocsc(),
+                permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True},
+            )
+        except RuntimeError:  # exactly singular: σ hit an eigenvalue; nudge it
+            shift += 1e-9 * scale * (attempt + 1)
+            continue
+        if np.array_equal(factor.perm_r, factor.perm_c):
+            pivots = factor.U.diagonal()
+            if np.all(np.isfinite(pivots)) and np.all(pivots != 0):
+                return _ShiftedFactor(shift, factor.solve, int(np.count_nonzero(pivots < 0)))
+        shift += 1e-9 * scale * (attempt + 1)
+    raise np.linalg.LinAlgError(f"could not factorise L - sigma D near sigma={shift:g}")
+
+
+def _orthonormalise(block: np.ndarray, basis: np.ndarray | None, mass: np.ndarray) -> np.ndarray:
+    """D-orthonormalise ``block`` against the D-orthonormal ``basis`` and within itself
+    (two passes of block Gram–Schmidt, SVQB: directions that vanish are dropped)."""
+    for _ in range(2):
+        if basis is not None and basis.shape[1]:
+            block = block - basis @ (basis.T @ (mass[:, None] * block))
+        lengths = np.sqrt(np.einsum("ij,i,ij->j", block, mass, block))
+        block = block[:, lengths > 0] / lengths[lengths > 0]
+        gram = block.T @ (mass[:, None] * block)
+        gram = 0.5 * (gram + gram.T)
+        values, rotation = np.linalg.eigh(gram)
+        keep = values > 1e-12 * max(values[-1], np.finfo(float).tiny) if len(values) else values > 0
+        if not np.any(keep):
+            return block[:, :0]
+        block = block @ (rotation[:, keep] / np.sqrt(values[keep]))
+    return block
+
+
+def _residual_norms(
+    stiffness: sparse.spmatrix, mass: np.ndarray, vectors: np.ndarray, values: np.ndarray,
+    stiff_vectors: np.ndarray | None = None,
+) -> np.ndarray:
+    """‖L h − λ D h‖_{D⁻¹} per column (the natural norm: it bounds |λ − λ_true|)."""
+    product = stiffness @ vectors if stiff_vectors is None else stiff_vectors
+    residual = product - mass[:, None] * vectors * values
+    return np.sqrt(np.einsum("ij,i,ij->j", residual, 1.0 / mass, residual))
+
+
+CLUSTER_GAP = 1e-6     # relative: closer eigenvalues count as one (repeated) eigenvalue
+EDGE_GAP = 1e-4        # relative: smallest gap a band edge may be placed in
+
+
+def _band_cut(values: np.ndarray, below: int, shift: float) -> tuple[int, float]:
+    """Where to end a band: ``(cut, upper)`` accepts ``values[:cut]``, all below ``upper``.
+
+    ``values`` (ascending) are the pairs found nearest σ; the first ``below`` lie under σ and
+    are complete (inertia). The last cluster found may continue past what was computed, so it
+    is never accepted; the cut goes in the widest relative gap (at least EDGE_GAP) of the upper
+    half of the rest, else at σ itself.
+    """
+    last = len(values) - 1
+    while last > below and values[last] - values[last - 1] <= CLUSTER_GAP * abs(values[last]):
+        last -= 1
+    # values[last] starts the final cluster: cuts can go at indices below+1 .. last.
+    for first in (below + max(1, (last - below) // 2), below + 1):
+        candidates = np.arange(first, last + 1)
+        if len(candidates) == 0:
+            continue
+        gaps = (values[candidates] - values[candidates - 1]) / np.abs(values[candidates])
+        best = int(np.argmax(gaps))
+        if gaps[best] >= EDGE_GAP:
+            cut = int(candidates[best])
+            return cut, 0.5 * (values[cut - 1] + values[cut])
+    return below, shift
+
+
+class _BandSolver:
+    """State shared by the bands of one spectrum-slicing solve."""
+
+    def __init__(self, stiffness, mass, count, band_size, initial, progress):
+        self.stiffness = stiffness.tocsr()
+        self.stiffness_csc = stiffness.tocsc()
+        self.mass = mass
+        self.mass_matrix = sparse.diags(mass).tocsc()
+        self.count = count
+        self.band_size = band_size
+        self.progress = progress
+        self.n = len(mass)
+        self.rng = np.random.default_rng(20080617)
+        # Weyl's law for a surface: N(λ) ≈ area · λ / 4π, the first guess of eigenvalue density.
+        self.density = mass.sum() / (4.0 * math.pi)
+        self.value_floor = 1.0 / self.density        # ~ the spacing of the first eigenvalues
+        self.solves = 0
+        self.initial = None
+        if initial is not None:
+            self._prepare_warm_start(initial)
+
+    def _prepare_warm_start(self, initial: np.ndarray) -> None:
+        """Order the previous basis by its Rayleigh quotients on the new mesh."""
+        vectors = np.asarray(initial, dtype=np.float64)
+        norms = np.einsum("ij,i,ij->j", vectors, self.mass, vectors)
+        quotients = np.einsum("ij,ij->j", vectors, self.stiffness @ vectors) / norms
+        order = np.argsort(quotients)
+        self.initial = vectors[:, order] / np.sqrt(norms[order])
+        self.initial_quotients = quotients[order]
+
+    def lanczos_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, wanted: int):
+        """The ``wanted`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
+        band's factorisation; accept those in [lower, σ) (all of them: their number is known)
+        and those above σ up to a wide gap below the outermost one found."""
+        shift = factor.shift
+        target_below = factor.below - accepted_below
+        k = max(wanted, target_below + 8)
+        while True:
+            k = min(k, self.n - 2)
+
+            def solve(x: np.ndarray) -> np.ndarray:
+                self.solves += 1
+                return factor.solve(x)
+
+            inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
+            values, vectors = scipy.sparse.linalg.eigsh(
+                self.stiffness, k=k, M=self.mass_matrix, sigma=shift, which="LM", OPinv=inverse,
+                v0=self.rng.standard_normal(self.n),
+            )
+            order = np.argsort(values)
+            values, vectors = values[order], vectors[:, order]
+            keep = values >= lower
+            values, vectors = values[keep], vectors[:, keep]
+            below = int(np.count_nonzero(values < shift))
+            above = len(values) - below
+            if below > target_below:
+                raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} pairs, {target_below} exist")
+            if below == target_below and (above >= 2 or k >= self.n - 2):
+                break
+            if k >= self.n - 2:
+                raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} of {target_below} pairs")
+            k = int(1.5 * k) + 8
+        # The outermost pairs found above σ may be part of a cluster that continues beyond the
+        # window: cut in the widest gap of the upper half of the run above σ.
+        cut, upper = _band_cut(values, below, shift)
+        return values[:cut], vectors[:, :cut], upper
+
+    def start_block(self, lower: float, shift: float, upper_guess: float, width: int) -> np.ndarray:
+        """Starting vectors for a band: previous-basis vectors whose Rayleigh quotients fall
+        in (or near) the band when warm, random otherwise."""
+        if self.initial is not None:
+            quotients = self.initial_quotients
+            margin = 0.25 * (upper_guess - lower)
+            inside = np.flatnonzero((quotients >= lower - margin) & (quotients <= upper_guess + margin))
+            if len(inside) >= 8:
+                block = self.initial[:, inside]
+                if len(inside) < width // 2:
+                    block = np.hstack([block, self.rng.standard_normal((self.n, width // 2 - len(inside)))])
+                return block
+        return self.rng.standard_normal((self.n, width))
+
+    def solve_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, block: np.ndarray,
+                   reach: float, wanted: int, max_basis: int):
+        """All eigenpairs in [lower, σ) (their number is known from the inertia), plus the
+        converged ones above σ up to a spectral gap. Returns (values, vectors, upper_edge).
+
+        Block shift-invert Davidson: the basis V (D-orthonormal) grows by S = (L − σD)⁻¹ D
+        applied to the Ritz vectors of the band that have not converged yet; Rayleigh–Ritz
+        (Vᵀ L V y = θ y) after each block; thick restart keeps the Ritz vectors nearest σ.
+        """
+        mass = self.mass
+        shift = factor.shift
+        target_below = factor.below - accepted_below
+        if target_below < 0:
+            raise np.linalg.LinAlgError("inertia below the lower band edge: bands out of order")
+
+        def operator(x: np.ndarray) -> np.ndarray:  # S x = (L − σD)⁻¹ D x
+            self.solves += x.shape[1]
+            return factor.solve(np.asfortranarray(mass[:, None] * x))
+
+        block_width = block.shape[1]
+        basis = np.empty((self.n, 0))
+        stiff_basis = np.empty((self.n, 0))
+        projected = np.empty((0, 0))
+        new = block if self.initial is not None else operator(block)
+        for sweep in range(100):
+            new = _orthonormalise(new, basis, mass)
+            if new.shape[1] == 0:
+                new = _orthonormalise(self.rng.standard_normal((self.n, block_width)), basis, mass)
+            stiff_new = self.stiffness @ new
+            # Rayleigh–Ritz on the growing D-orthonormal basis V: A = Vᵀ L V.
+            cross = basis.T @ stiff_new
+            corner = new.T @ stiff_new
+            projected = np.block([[projected, cross], [cross.T, 0.5 * (corner + corner.T)]])
+            basis = np.hstack([basis, new])
+            stiff_basis = np.hstack([stiff_basis, stiff_new])
+            values, rotation = np.linalg.eigh(projected)
+            # The band: Ritz values from the lower edge up to as far above σ as σ is above it.
+            band = np.flatnonzero((values >= lower) & (values <= reach))
+            vectors = basis @ rotation[:, band]
+            residuals = _residual_norms(self.stiffness, mass, vectors, values[band], stiff_basis @ rotation[:, band])
+            converged = residuals <= RESIDUAL_TOLERANCE * np.maximum(np.abs(values[band]), self.value_floor)
+            band_values = values[band]
+            below = band_values < shift
+            log.debug("sweep %d basis %d below %d/%d converged %d/%d", sweep, basis.shape[1],
+                      below.sum(), target_below, converged.sum(), len(converged))
+            if below.sum() == target_below and np.all(converged[below]):
+                above = np.flatnonzero(~below)
+                run = 0
+                while run < len(above) and converged[above[run]]:
+                    run += 1
+                base = int(below.sum())
+                if run >= 2 and base + run >= wanted:
+                    cut, upper = _band_cut(band_values[:base + run], base, shift)
+                    return band_values[:cut], vectors[:, :cut], upper
+            # Block Krylov: the next block is S applied to the newest one. Thick restart when
+            # the basis is full: keep the Ritz vectors nearest σ and the newest block, so the
+            # basis stays a Krylov space of the kept vectors.
+            if basis.shape[1] + new.shape[1] > max_basis:
+                keep = np.argsort(np.abs(values - shift))[: max(max_basis // 2, len(band) + 8)]
+                keep.sort()
+                newest = basis[:, -new.shape[1]:]
+                stiff_newest = stiff_basis[:, -new.shape[1]:]
+                basis = basis @ rotation[:, keep]
+                stiff_basis = stiff_basis @ rotation[:, keep]
+                projected = np.diag(values[keep])
+                newest_next = operator(newest)
+                # Re-enter the newest block itself (it is D-orthogonal to the kept Ritz vectors
+                # only approximately, so it goes through the orthonormalisation again).
+                new = np.hstack([newest, newest_next])
+                del stiff_newest
+            else:
+                new = operator(new)
+        raise np.linalg.LinAlgError(f"band at sigma={shift:g} did not converge")
+
+
+def _spectrum_slicing(
+    stiffness: sparse.spmatrix,
+    mass: np.ndarray,
+    count: int,
+    *,
+    initial: np.ndarray | None,
+    progress: Progress | None,
+    band_size: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bands from the bottom of the spectrum up until ``count`` pairs are accepted.
+
+    Band j factorises L − σ_j D with σ_j a quarter band above its lower edge (the previous
+    band's upper edge), so the pairs below σ_j, whose number the inertia gives exactly, are
+    near σ_j and converge first; it accepts those plus the converged run above σ_j, cut in a
+    wide spectral gap. The next band's inertia verifies that run; the last one is verified by
+    one more inertia count at its upper edge.
+    """
+    solver = _BandSolver(stiffness, mass, count, band_size, initial, progress)
+    n = len(mass)
+    values_found: list[np.ndarray] = []
+    vectors_found: list[np.ndarray] = []
+    done = 0
+    lower = -np.inf
+    scale = float(stiffness.diagonal().max() / mass.max())
+    band_index = 0
+    while done < count:
+        remaining = count - done
+        wanted = min(band_size, remaining + 4)
+        if band_index == 0:
+            # σ below 0 (L is only semi-definite): nothing lies below it.
+            shift = -0.5 * solver.value_floor
+            reach = shift + 1.1 * wanted / solver.density
+        else:
+            shift = lower + 0.35 * wanted / solver.density
+            reach = lower + 1.1 * wanted / solver.density
+        factor = _factorise(solver.stiffness_csc, solver.mass_matrix, shift)
+        if solver.initial is None:
+            values, vectors, upper = solver.lanczos_band(factor, lower, done, wanted)
+        else:
+            width = max(16, min(wanted, band_size // 2))
+            block = solver.start_block(lower, shift, reach, width)
+            values, vectors, upper = solver.solve_band(
+                factor, lower, done, block, reach, wanted=int(0.8 * wanted), max_basis=max(4 * width, 2 * wanted)
+            )
+        log.debug("band %d: sigma=%.6g below=%d accepted=%d solves=%d", band_index, shift,
+                  factor.below, len(values), solver.solves)
+        if len(values) > 4:
+            # Observed density over this band sharpens the next shift.
+            start = max(lower, 0.0) if np.isfinite(lower) else 0.0
+            solver.density = len(values) / max(upper - start, 1e-300)
+        values_found.append(values)
+        vectors_found.append(vectors)
+        done += len(values)
+        lower = upper
+        band_index += 1
+        if progress is not None:
+            progress(min(done, count), count)
+    # The last band's run above its shift is verified by the inertia at its upper edge.
+    top = _factorise(solver.stiffness_csc, solver.mass_matrix, lower)
+    if top.below != done:
+        raise np.linalg.LinAlgError(f"{top.below} eigenvalues below {lower:g}, {done} accepted")
+    eigenvalues = np.concatenate(values_found)
+    order = np.argsort(eigenvalues, kind="stable")[:count]
+    eigenvectors = np.empty((n, count))
+    column = 0
+    for vectors in vectors_found:
+        width = vectors.shape[1]
+        chosen = order[(order >= column) & (order < column + width)]
+        eigenvectors[:, np.flatnonzero((order >= column) & (order < column + width))] = vectors[:, chosen - column]
+        column += width
+        vectors_found[0] = None  # free as we go
+    return eigenvalues[order], eigenvectors
