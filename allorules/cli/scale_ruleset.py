@@ -168,7 +168,8 @@ def _run_local(arguments, prepared, body, mesh: Path, output: Path) -> int:
     alpha = 0.0 if arguments.alpha is None else float(arguments.alpha)
     if arguments.arithmetic is not None:
         log.warning("--arithmetic: the paper's bad example, for comparison only; the region's boundary will tear")
-    scaled = scale_region(body, arguments.region, alpha, modes=arguments.modes, arithmetic_factor=arguments.arithmetic)
+    scaled = scale_region(body, arguments.region, alpha, modes=arguments.modes, arithmetic_factor=arguments.arithmetic,
+                          use_cache=not getattr(arguments, "no_cache", False))
     from ..global_scaling import count_flipped_faces
 
     seam = seam_strain(body.vertices, scaled.vertices, body.faces, body.region_mask(arguments.region))
@@ -196,8 +197,14 @@ def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
     ruleset = load_ruleset(arguments.ruleset, registry)
     ruleset = override_exponents(ruleset, parse_rule_overrides(arguments.rule or []), registry)
     progress = terminal_progress("scaling steps")
+    section = None
+    if getattr(arguments, "section", None):
+        from .scale import _section_choice   # the --section option belongs to the scale command
+
+        section = _section_choice(arguments.section)
     try:
         result = scale_with_ruleset(body, ruleset, arguments.mass_ratio, registry=registry, modes=arguments.modes,
+                                    section=section, use_cache=not getattr(arguments, "no_cache", False),
                                     progress=progress)
     except ScalingError as error:
         if arguments.report and error.closest is not None:
