@@ -9,14 +9,15 @@ Methods:
 - ``"dense"``: LAPACK on the full matrices, for small meshes.
 - ``"bands"`` (spectrum slicing, Vallet & Lévy 2008): the spectrum is cut into consecutive
   bands of ~``band_size`` eigenpairs. Each band factorises ``L − σD`` once (sparse LU, symmetric
-  ordering, no off-diagonal pivoting) and runs a thick-restarted block Krylov iteration with the
-  shift-invert operator ``S = (L − σD)⁻¹ D`` followed by Rayleigh–Ritz. The same factorisation
-  gives the inertia of ``L − σD`` (Sylvester's law: the number of negative pivots is the number
-  of eigenvalues below σ), so every band *knows* how many eigenpairs lie below its shift and the
-  solver never misses or duplicates one; band edges are placed in the widest spectral gap near
-  the top of a band so that a cluster of (nearly) repeated eigenvalues is never split.
-  Warm start (``initial``): the previous basis's vectors, sorted by their new Rayleigh quotients,
-  seed each band instead of random vectors; the band then converges in one or two sweeps.
+  ordering, no off-diagonal pivoting) and runs ARPACK's implicitly restarted Lanczos with the
+  shift-invert operator ``(L − σD)⁻¹ D`` on it. The same factorisation gives the inertia of
+  ``L − σD`` (Sylvester's law: the number of negative pivots is the number of eigenvalues below
+  σ), so every band *knows* how many eigenpairs lie below its shift: a pair Lanczos missed (one
+  copy of an exactly repeated eigenvalue, say) is recovered by a run deflated against what was
+  found, and none is duplicated. Band edges are placed in a wide spectral gap, never inside a
+  cluster of (nearly) repeated eigenvalues; the last band is checked by one more inertia count.
+  Warm start (``initial``): the previous basis's vectors whose Rayleigh quotients on the new
+  mesh fall in a band start that band's Lanczos run.
 - ``"eigsh"``: scipy's shift-invert Lanczos over the whole range, the reference.
 
 ``terminal_progress`` makes a tqdm bar callback when stderr is a terminal (``None`` otherwise).
@@ -38,7 +39,6 @@ log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
 BAND_SIZE = 120                   # eigenpairs accepted per band (about)
-RESIDUAL_TOLERANCE = 1e-9        # ‖L h − λ D h‖_{D⁻¹} / max(λ, λ_floor) for an accepted pair
 
 Progress = Callable[[int, int], None]
 
@@ -191,16 +191,6 @@ def _orthonormalise(block: np.ndarray, basis: np.ndarray | None, mass: np.ndarra
     return block
 
 
-def _residual_norms(
-    stiffness: sparse.spmatrix, mass: np.ndarray, vectors: np.ndarray, values: np.ndarray,
-    stiff_vectors: np.ndarray | None = None,
-) -> np.ndarray:
-    """‖L h − λ D h‖_{D⁻¹} per column (the natural norm: it bounds |λ − λ_true|)."""
-    product = stiffness @ vectors if stiff_vectors is None else stiff_vectors
-    residual = product - mass[:, None] * vectors * values
-    return np.sqrt(np.einsum("ij,i,ij->j", residual, 1.0 / mass, residual))
-
-
 CLUSTER_GAP = 1e-6     # relative: closer eigenvalues count as one (repeated) eigenvalue
 EDGE_GAP = 1e-4        # relative: smallest gap a band edge may be placed in
 
@@ -246,6 +236,7 @@ class _BandSolver:
         self.density = mass.sum() / (4.0 * math.pi)
         self.value_floor = 1.0 / self.density        # ~ the spacing of the first eigenvalues
         self.solves = 0
+        self.window = (-np.inf, np.inf)
         self.initial = None
         if initial is not None:
             self._prepare_warm_start(initial)
@@ -259,130 +250,90 @@ class _BandSolver:
         self.initial = vectors[:, order] / np.sqrt(norms[order])
         self.initial_quotients = quotients[order]
 
-    def lanczos_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, wanted: int):
-        """The ``wanted`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
-        band's factorisation; accept those in [lower, σ) (all of them: their number is known)
-        and those above σ up to a wide gap below the outermost one found."""
+    def lanczos(self, factor: _ShiftedFactor, k: int, deflate: np.ndarray | None = None):
+        """The ``k`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
+        factorisation, ascending. With ``deflate`` (D-orthonormal columns U) the operator is
+        P S P with P = I − U Uᵀ D, so pairs already found are not found again."""
+        k = min(k, self.n - 2 - (0 if deflate is None else deflate.shape[1]))
+        mass = self.mass
+
+        if deflate is None:
+            def solve(y: np.ndarray) -> np.ndarray:
+                self.solves += 1
+                return factor.solve(y)
+        else:
+            mass_deflate = mass[:, None] * deflate
+
+            def solve(y: np.ndarray) -> np.ndarray:  # ARPACK passes y = D x
+                self.solves += 1
+                z = factor.solve(y - mass_deflate @ (deflate.T @ y))
+                return z - deflate @ (mass_deflate.T @ z)
+
+        inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
+        start = self.rng.standard_normal(self.n)
+        if self.initial is not None and deflate is None:
+            # Warm start: the previous basis's vectors whose Rayleigh quotients fall in the
+            # band, summed, start the Lanczos run (plus a little noise so nothing is missed).
+            low, high = self.window
+            inside = (self.initial_quotients >= low) & (self.initial_quotients <= high)
+            if np.any(inside):
+                start = self.initial[:, inside].sum(axis=1) + 1e-3 * start / np.sqrt(self.n)
+        if deflate is not None:
+            start -= deflate @ (deflate.T @ (mass * start))
+        values, vectors = scipy.sparse.linalg.eigsh(
+            self.stiffness, k=k, M=self.mass_matrix, sigma=factor.shift, which="LM", OPinv=inverse, v0=start,
+        )
+        order = np.argsort(values)
+        return values[order], vectors[:, order]
+
+    def recover(self, factor: _ShiftedFactor, missing: int, found: list[np.ndarray], lowest: float, spare: int):
+        """Pairs below σ and at or above ``lowest`` that the inertia says exist but were not
+        found (e.g. one copy of an exactly repeated eigenvalue): Lanczos deflated against
+        every vector ``found`` near the band."""
+        values_out, vectors_out = [], []
+        k = missing + max(8, spare)
+        for _ in range(6):
+            deflate = _orthonormalise(np.hstack(found + vectors_out), None, self.mass)
+            values, vectors = self.lanczos(factor, k, deflate)
+            pick = np.flatnonzero((values < factor.shift) & (values >= lowest))[:missing]
+            if len(pick):
+                values_out.append(values[pick])
+                vectors_out.append(vectors[:, pick])
+                missing -= len(pick)
+            if missing == 0:
+                log.debug("recovered missing pairs at sigma=%g", factor.shift)
+                return np.concatenate(values_out), np.hstack(vectors_out)
+            k *= 2
+        raise np.linalg.LinAlgError(f"{missing} eigenpairs below sigma={factor.shift:g} not found")
+
+    def lanczos_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, wanted: int,
+                     previous: np.ndarray | None, previous_lower: float):
+        """A band by ARPACK: the ``wanted`` pairs nearest σ; accept those in [lower, σ) (all of
+        them: their number is known from the inertia, and pairs missed here or in the previous
+        band's run above its shift are recovered by deflation) and those above σ up to a wide
+        gap below the outermost one found."""
         shift = factor.shift
         target_below = factor.below - accepted_below
-        k = max(wanted, target_below + 8)
-        while True:
-            k = min(k, self.n - 2)
-
-            def solve(x: np.ndarray) -> np.ndarray:
-                self.solves += 1
-                return factor.solve(x)
-
-            inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
-            values, vectors = scipy.sparse.linalg.eigsh(
-                self.stiffness, k=k, M=self.mass_matrix, sigma=shift, which="LM", OPinv=inverse,
-                v0=self.rng.standard_normal(self.n),
-            )
+        values, vectors = self.lanczos(factor, max(wanted, target_below + 8))
+        keep = values >= lower
+        values, vectors = values[keep], vectors[:, keep]
+        below = int(np.count_nonzero(values < shift))
+        if below > target_below:
+            raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} pairs, {target_below} exist")
+        if below < target_below:
+            found = [vectors] + ([previous] if previous is not None else [])
+            extra_values, extra_vectors = self.recover(
+                factor, target_below - below, found, previous_lower, spare=len(values) - below)
+            values = np.concatenate([extra_values, values])
+            vectors = np.hstack([extra_vectors, vectors])
             order = np.argsort(values)
             values, vectors = values[order], vectors[:, order]
-            keep = values >= lower
-            values, vectors = values[keep], vectors[:, keep]
+            below = target_below
             below = int(np.count_nonzero(values < shift))
-            above = len(values) - below
-            if below > target_below:
-                raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} pairs, {target_below} exist")
-            if below == target_below and (above >= 2 or k >= self.n - 2):
-                break
-            if k >= self.n - 2:
-                raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} of {target_below} pairs")
-            k = int(1.5 * k) + 8
         # The outermost pairs found above σ may be part of a cluster that continues beyond the
         # window: cut in the widest gap of the upper half of the run above σ.
         cut, upper = _band_cut(values, below, shift)
         return values[:cut], vectors[:, :cut], upper
-
-    def start_block(self, lower: float, shift: float, upper_guess: float, width: int) -> np.ndarray:
-        """Starting vectors for a band: previous-basis vectors whose Rayleigh quotients fall
-        in (or near) the band when warm, random otherwise."""
-        if self.initial is not None:
-            quotients = self.initial_quotients
-            margin = 0.25 * (upper_guess - lower)
-            inside = np.flatnonzero((quotients >= lower - margin) & (quotients <= upper_guess + margin))
-            if len(inside) >= 8:
-                block = self.initial[:, inside]
-                if len(inside) < width // 2:
-                    block = np.hstack([block, self.rng.standard_normal((self.n, width // 2 - len(inside)))])
-                return block
-        return self.rng.standard_normal((self.n, width))
-
-    def solve_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, block: np.ndarray,
-                   reach: float, wanted: int, max_basis: int):
-        """All eigenpairs in [lower, σ) (their number is known from the inertia), plus the
-        converged ones above σ up to a spectral gap. Returns (values, vectors, upper_edge).
-
-        Block shift-invert Davidson: the basis V (D-orthonormal) grows by S = (L − σD)⁻¹ D
-        applied to the Ritz vectors of the band that have not converged yet; Rayleigh–Ritz
-        (Vᵀ L V y = θ y) after each block; thick restart keeps the Ritz vectors nearest σ.
-        """
-        mass = self.mass
-        shift = factor.shift
-        target_below = factor.below - accepted_below
-        if target_below < 0:
-            raise np.linalg.LinAlgError("inertia below the lower band edge: bands out of order")
-
-        def operator(x: np.ndarray) -> np.ndarray:  # S x = (L − σD)⁻¹ D x
-            self.solves += x.shape[1]
-            return factor.solve(np.asfortranarray(mass[:, None] * x))
-
-        block_width = block.shape[1]
-        basis = np.empty((self.n, 0))
-        stiff_basis = np.empty((self.n, 0))
-        projected = np.empty((0, 0))
-        new = block if self.initial is not None else operator(block)
-        for sweep in range(100):
-            new = _orthonormalise(new, basis, mass)
-            if new.shape[1] == 0:
-                new = _orthonormalise(self.rng.standard_normal((self.n, block_width)), basis, mass)
-            stiff_new = self.stiffness @ new
-            # Rayleigh–Ritz on the growing D-orthonormal basis V: A = Vᵀ L V.
-            cross = basis.T @ stiff_new
-            corner = new.T @ stiff_new
-            projected = np.block([[projected, cross], [cross.T, 0.5 * (corner + corner.T)]])
-            basis = np.hstack([basis, new])
-            stiff_basis = np.hstack([stiff_basis, stiff_new])
-            values, rotation = np.linalg.eigh(projected)
-            # The band: Ritz values from the lower edge up to as far above σ as σ is above it.
-            band = np.flatnonzero((values >= lower) & (values <= reach))
-            vectors = basis @ rotation[:, band]
-            residuals = _residual_norms(self.stiffness, mass, vectors, values[band], stiff_basis @ rotation[:, band])
-            converged = residuals <= RESIDUAL_TOLERANCE * np.maximum(np.abs(values[band]), self.value_floor)
-            band_values = values[band]
-            below = band_values < shift
-            log.debug("sweep %d basis %d below %d/%d converged %d/%d", sweep, basis.shape[1],
-                      below.sum(), target_below, converged.sum(), len(converged))
-            if below.sum() == target_below and np.all(converged[below]):
-                above = np.flatnonzero(~below)
-                run = 0
-                while run < len(above) and converged[above[run]]:
-                    run += 1
-                base = int(below.sum())
-                if run >= 2 and base + run >= wanted:
-                    cut, upper = _band_cut(band_values[:base + run], base, shift)
-                    return band_values[:cut], vectors[:, :cut], upper
-            # Block Krylov: the next block is S applied to the newest one. Thick restart when
-            # the basis is full: keep the Ritz vectors nearest σ and the newest block, so the
-            # basis stays a Krylov space of the kept vectors.
-            if basis.shape[1] + new.shape[1] > max_basis:
-                keep = np.argsort(np.abs(values - shift))[: max(max_basis // 2, len(band) + 8)]
-                keep.sort()
-                newest = basis[:, -new.shape[1]:]
-                stiff_newest = stiff_basis[:, -new.shape[1]:]
-                basis = basis @ rotation[:, keep]
-                stiff_basis = stiff_basis @ rotation[:, keep]
-                projected = np.diag(values[keep])
-                newest_next = operator(newest)
-                # Re-enter the newest block itself (it is D-orthogonal to the kept Ritz vectors
-                # only approximately, so it goes through the orthonormalisation again).
-                new = np.hstack([newest, newest_next])
-                del stiff_newest
-            else:
-                new = operator(new)
-        raise np.linalg.LinAlgError(f"band at sigma={shift:g} did not converge")
 
 
 def _spectrum_slicing(
@@ -407,7 +358,7 @@ def _spectrum_slicing(
     values_found: list[np.ndarray] = []
     vectors_found: list[np.ndarray] = []
     done = 0
-    lower = -np.inf
+    lower = previous_lower = -np.inf
     scale = float(stiffness.diagonal().max() / mass.max())
     band_index = 0
     while done < count:
@@ -421,14 +372,9 @@ def _spectrum_slicing(
             shift = lower + 0.35 * wanted / solver.density
             reach = lower + 1.1 * wanted / solver.density
         factor = _factorise(solver.stiffness_csc, solver.mass_matrix, shift)
-        if solver.initial is None:
-            values, vectors, upper = solver.lanczos_band(factor, lower, done, wanted)
-        else:
-            width = max(16, min(wanted, band_size // 2))
-            block = solver.start_block(lower, shift, reach, width)
-            values, vectors, upper = solver.solve_band(
-                factor, lower, done, block, reach, wanted=int(0.8 * wanted), max_basis=max(4 * width, 2 * wanted)
-            )
+        solver.window = (lower if np.isfinite(lower) else -np.inf, reach)
+        values, vectors, upper = solver.lanczos_band(
+            factor, lower, done, wanted, vectors_found[-1] if vectors_found else None, previous_lower)
         log.debug("band %d: sigma=%.6g below=%d accepted=%d solves=%d", band_index, shift,
                   factor.below, len(values), solver.solves)
         if len(values) > 4:
@@ -438,14 +384,20 @@ def _spectrum_slicing(
         values_found.append(values)
         vectors_found.append(vectors)
         done += len(values)
-        lower = upper
+        previous_lower, lower = lower, upper
         band_index += 1
         if progress is not None:
             progress(min(done, count), count)
     # The last band's run above its shift is verified by the inertia at its upper edge.
     top = _factorise(solver.stiffness_csc, solver.mass_matrix, lower)
-    if top.below != done:
+    if top.below < done:
         raise np.linalg.LinAlgError(f"{top.below} eigenvalues below {lower:g}, {done} accepted")
+    if top.below > done:
+        values, vectors = solver.recover(top, top.below - done, [vectors_found[-1]], previous_lower,
+                                         spare=vectors_found[-1].shape[1])
+        values_found.append(values)
+        vectors_found.append(vectors)
+        done += len(values)
     eigenvalues = np.concatenate(values_found)
     order = np.argsort(eigenvalues, kind="stable")[:count]
     eigenvectors = np.empty((n, count))
@@ -455,5 +407,4 @@ def _spectrum_slicing(
         chosen = order[(order >= column) & (order < column + width)]
         eigenvectors[:, np.flatnonzero((order >= column) & (order < column + width))] = vectors[:, chosen - column]
         column += width
-        vectors_found[0] = None  # free as we go
     return eigenvalues[order], eigenvectors
