@@ -272,7 +272,10 @@ def harmonic_field(vertices: np.ndarray, faces: np.ndarray, low: np.ndarray, hig
         # L_ff u_f = −L_fc u_c
         right = -stiffness[free][:, np.flatnonzero(fixed)] @ values[fixed]
         values[free] = scipy.sparse.linalg.spsolve(stiffness[free][:, free].tocsc(), right)
-    return values
+    # Maximum principle: a harmonic function lies between its boundary values. Round-off (which
+    # depends on where the mesh sits in space) can put a free vertex a few ulps outside [0, 1];
+    # clipping keeps the openings the field's exact extremes (see area_quantile_levels).
+    return np.clip(values, 0.0, 1.0)
 
 
 def face_adjacency(faces: np.ndarray) -> sparse.csr_matrix:
@@ -319,8 +322,13 @@ def area_quantile_levels(vertices: np.ndarray, faces: np.ndarray, field: np.ndar
     cumulative = np.cumsum(mass[order])
     cumulative /= cumulative[-1]
     targets = (np.arange(count) + 0.5) / count
-    levels = np.interp(targets, cumulative, field[order])
-    return np.unique(levels)
+    levels = np.unique(np.interp(targets, cumulative, field[order]))
+    # A level at the field's minimum or maximum is not a cross-section: at the minimum nothing
+    # is below it, at the maximum its "contour" is the set where the maximum is attained. For a
+    # harmonic field that set is a whole opening (a plateau of vertices at exactly 0 or 1, which
+    # the quantiles land on when the opening holds more than 1/(2·count) of the area), and which
+    # spurious loops round-off then draws around it depended on the mesh's place in space.
+    return levels[(levels > field.min()) & (levels < field.max())]
 
 
 # ---------------------------------------------------------------------------------------------
