@@ -105,15 +105,10 @@ def test_isometric_ruleset_is_uniform_scaling(animal, registry):
     assert all(step.evaluations == 1 for step in result.steps)       # the start is already the answer
     assert result.mass_ratio == pytest.approx(2.0, rel=1e-9)
     for rule in result.rules:
-        if rule.id == "neck-length":    # see test_neck_length_measure_does_not_depend_on_place
-            continue
         assert rule.achieved_exponent == pytest.approx(rule.exponent, abs=1e-6)
     _check_output(result, body)
 
 
-@pytest.mark.xfail(strict=True, reason="measures.region_length('neck') changes by ~8 % when the body is only "
-                   "translated (found by the isometric run: neck exponent 0.214 for an exactly uniform scaling); "
-                   "a bug in the measurement, reported to its owner")
 def test_neck_length_measure_does_not_depend_on_place(animal):
     from allorules.measures import region_length
 
@@ -123,9 +118,6 @@ def test_neck_length_measure_does_not_depend_on_place(animal):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="fails through the neck-length measurement bug (see "
-                   "test_neck_length_measure_does_not_depend_on_place): measured 0.300 for a target of 0.55 at "
-                   "R = 1.331 while every step met its own neck target on carried fields")
 def test_neck_override_moves_the_neck_exponent(animal, registry):
     ruleset = override_exponents(load_ruleset("neck-override", registry), {"neck-length": 0.55}, registry)
     ratio = 1.1 ** 3
