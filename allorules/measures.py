@@ -214,11 +214,14 @@ def part_fields(body: Body, region: str) -> list[np.ndarray]:
 def carry_fields(reference: Body, body: Body) -> Body:
     """Measure ``body`` along the fields of ``reference`` (same faces and labels, moved vertices).
 
-    Copies the reference's region parts (connectivity) and part fields, as far as they have been
-    computed, into ``body.cache``: ``body``'s sections, skeletons, lengths and girths are then
-    taken on the same material curves as on the reference instead of on freshly computed Fiedler
-    vectors. Meant for an optimiser that measures many trial deformations of one body: faster,
-    and the measures vary smoothly with the vertices. Returns ``body``.
+    Copies the reference's region parts (connectivity) and part fields, and the loops, skeletons,
+    limbs and torso sections measured on it, as far as they have been computed, into
+    ``body.cache``: ``body``'s sections, skeletons, lengths and girths are then taken on the same
+    material curves as on the reference. Those loops cross the same mesh edges at the same place
+    along them, so they are re-measured by interpolation (:meth:`Loop.moved`) with no
+    re-extraction, the skeletons keep their nodes and joins, and the chest keeps its candidate
+    sections: every measure is then a continuous function of the vertices. Meant for an optimiser
+    that measures many trial deformations of one body. Returns ``body``.
     """
     if reference.faces.shape != body.faces.shape or not np.array_equal(reference.faces, body.faces):
         raise ValueError("carry_fields needs two bodies with the same faces")
@@ -234,6 +237,10 @@ def carry_fields(reference: Body, body: Body) -> Body:
                 for part in value
             ]
         elif key.startswith("measures.fields:"):
+            body.cache[key] = value
+        elif key.startswith(("measures.skeleton:", "measures.limbs:", "measures.torso:")):
+            body.cache["measures.carried." + key[len("measures."):]] = value
+        elif key.startswith("measures.carried."):   # a carried body passed on as a reference
             body.cache[key] = value
     return body
 
@@ -272,6 +279,16 @@ class Limb:
     field: np.ndarray         # per part vertex, grows from junction to tip
     levels: np.ndarray        # field level of each section
     mesh: RegionPart
+    junction_loop: Loop | None = None   # the junction's open boundary (None: the field's lowest vertex)
+
+    def moved(self, part: RegionPart) -> "Limb":
+        """The same limb (same loops, junction and tip) on a moved copy ``part`` of its mesh."""
+        loops = [section.loop.moved(part.vertices) for section in self.sections]
+        junction_loop = None if self.junction_loop is None else self.junction_loop.moved(part.vertices)
+        junction = part.vertices[int(np.argmin(self.field))] if junction_loop is None else junction_loop.centroid
+        tip = part.vertices[int(np.argmax(self.field))]
+        sections, length = _chain_sections(junction, loops, tip)
+        return Limb(self.region, self.part, sections, junction, tip, length, self.field, self.levels, part, junction_loop)
 
     def section_at(self, fraction: float) -> Section:
         """The cross-section at ``fraction`` of the limb's length (0 junction, 1 tip), recomputed exactly."""
@@ -297,16 +314,20 @@ def _limb(part: RegionPart, index: int, field: np.ndarray) -> Limb:
             kept_levels.append(level)
     boundaries = boundary_loops(part.vertices, part.faces)
     tip = part.vertices[int(np.argmax(field))]
-    if boundaries:
-        junction = max(boundaries, key=lambda loop: loop.girth).centroid
-    else:
-        junction = part.vertices[int(np.argmin(field))]
+    junction_loop = max(boundaries, key=lambda loop: loop.girth) if boundaries else None
+    junction = part.vertices[int(np.argmin(field))] if junction_loop is None else junction_loop.centroid
+    sections, length = _chain_sections(junction, loops, tip)
+    return Limb(part.region, index, sections, junction, tip, length, field, np.asarray(kept_levels), part, junction_loop)
+
+
+def _chain_sections(junction: np.ndarray, loops: list[Loop], tip: np.ndarray) -> tuple[list[Section], float]:
+    """Sections along the chain junction → loop centroids → tip, and the chain's length."""
     chain = [junction] + [loop.centroid for loop in loops] + [tip]
     steps = np.linalg.norm(np.diff(np.asarray(chain), axis=0), axis=1)
     distances = np.cumsum(steps)
     length = float(distances[-1])
     sections = [Section(loop, float(d), float(d / length) if length > 0 else 0.0) for loop, d in zip(loops, distances[:-1])]
-    return Limb(part.region, index, sections, junction, tip, length, field, np.asarray(kept_levels), part)
+    return sections, length
 
 
 def limb_sections(body: Body, region: str) -> list[Limb]:
@@ -318,8 +339,13 @@ def limb_sections(body: Body, region: str) -> list[Limb]:
     """
     key = f"measures.limbs:{region}"
     if key not in body.cache:
-        parts, fields = region_parts(body, region), part_fields(body, region)
-        body.cache[key] = [_limb(part, index, field) for index, (part, field) in enumerate(zip(parts, fields))]
+        parts = region_parts(body, region)
+        carried = body.cache.get(f"measures.carried.limbs:{region}")
+        if carried is not None:   # the reference's limbs, re-measured on the moved parts
+            body.cache[key] = [limb.moved(part) for limb, part in zip(carried, parts)]
+        else:
+            fields = part_fields(body, region)
+            body.cache[key] = [_limb(part, index, field) for index, (part, field) in enumerate(zip(parts, fields))]
     return body.cache[key]
 
 
@@ -403,6 +429,9 @@ def peak_stress(body: Body, *, override: SectionChoice | None = None) -> float:
 def region_skeleton(body: Body, region: str) -> list[Skeleton]:
     """Skeleton of each part of a region, from the part's own Fiedler vector."""
     key = f"measures.skeleton:{region}"
+    carried = body.cache.get(f"measures.carried.skeleton:{region}")
+    if key not in body.cache and carried is not None:   # the reference's skeletons, re-measured
+        body.cache[key] = [part_skeleton.moved(part.vertices) for part_skeleton, part in zip(carried, region_parts(body, region))]
     if key not in body.cache:
         skeletons = []
         for part, field in zip(region_parts(body, region), part_fields(body, region)):
@@ -451,8 +480,19 @@ def torso_axis(body: Body) -> np.ndarray:
 
 
 def _torso_loops(body: Body, region: str, axis: np.ndarray) -> tuple[list[Loop], np.ndarray]:
-    """Closed plane sections of a region's largest part across ``axis`` (largest loop per level)."""
+    """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
+
+    On a carried body (:func:`carry_fields`) the reference's sections, re-measured on the moved
+    vertices (the same material curves: the planes of the reference, bent with the body).
+    """
+    key = f"measures.torso:{region}"
+    if key in body.cache:
+        return body.cache[key]
     part = region_parts(body, region)[0]
+    carried = body.cache.get(f"measures.carried.torso:{region}")
+    if carried is not None:
+        body.cache[key] = ([loop.moved(part.vertices) for loop in carried[0]], carried[1])
+        return body.cache[key]
     field = part.vertices @ axis
     levels = area_quantile_levels(part.vertices, part.faces, field, SECTION_COUNT)
     loops, kept = [], []
@@ -461,22 +501,34 @@ def _torso_loops(body: Body, region: str, axis: np.ndarray) -> tuple[list[Loop],
         if found:
             loops.append(found[0])
             kept.append(level)
-    return loops, np.asarray(kept)
+    body.cache[key] = (loops, np.asarray(kept))
+    return body.cache[key]
 
 
 def chest_girth(body: Body) -> float:
     """Heart girth: the largest closed section of the chest across the torso axis behind the forelimbs.
 
     "Behind the forelimbs" means every point of the section lies behind (along the torso axis)
-    the rearmost point where the forelimbs meet the body; without forelimbs, any section.
+    the rearmost point where the forelimbs meet the body; without forelimbs, any section. On a
+    carried body (:func:`carry_fields`) the candidate sections are the reference's, re-measured:
+    the girth is then the largest of a fixed set of continuous functions of the vertices, so it
+    does not jump when a section would cross the forelimbs' limit on a nearly identical mesh.
     """
     axis = torso_axis(body)
     loops, _ = _torso_loops(body, "chest", axis)
-    if body.has_region("forelimbs") and body.region_mask("forelimbs").any():
-        forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
-        junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
-        limit = (junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min()
-        loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
+    key = "measures.torso:chest-behind-forelimbs"
+    if key not in body.cache:
+        carried = body.cache.get("measures.carried." + key[len("measures."):])
+        if carried is not None:
+            body.cache[key] = carried
+        elif body.has_region("forelimbs") and body.region_mask("forelimbs").any():
+            forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
+            junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
+            limit = (junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min()
+            body.cache[key] = [index for index, loop in enumerate(loops) if (loop.points @ axis).max() <= limit]
+        else:
+            body.cache[key] = list(range(len(loops)))
+    loops = [loops[index] for index in body.cache[key]]
     if not loops:
         raise MeasurementError(
             "no closed section of the chest behind the forelimbs: the chest region does not go all "

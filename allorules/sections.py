@@ -42,6 +42,25 @@ class Loop:
     level: float = float("nan")   # the field value it is an isocontour of (nan: a mesh boundary)
     closed: bool = True
     vertex_ids: np.ndarray | None = None   # for a mesh boundary: the mesh vertex of each point
+    # For an isocontour: the mesh edge (two vertex ids) each point lies on and where along it,
+    # points[k] = v[edges[k, 0]] + weights[k] · (v[edges[k, 1]] − v[edges[k, 0]]).
+    edges: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    def moved(self, vertices: np.ndarray) -> "Loop":
+        """The same material loop on the mesh with new ``vertices`` (same faces, same edges).
+
+        An isocontour of a field carried unchanged to the moved mesh crosses the same edges at
+        the same place along them, so its points are a linear interpolation, no re-extraction.
+        """
+        if self.vertex_ids is not None:
+            points = vertices[self.vertex_ids]
+        elif self.edges is not None:
+            start = vertices[self.edges[:, 0]]
+            points = start + self.weights[:, None] * (vertices[self.edges[:, 1]] - start)
+        else:
+            raise ValueError("this loop does not know the mesh edges it lies on")
+        return Loop(points, self.faces, self.level, self.closed, self.vertex_ids, self.edges, self.weights)
 
     def _segments(self) -> tuple[np.ndarray, np.ndarray]:
         following = np.roll(self.points, -1, axis=0) if self.closed else self.points[1:]
@@ -186,7 +205,8 @@ def isocontour_loops(
             continue
         pairs = zip(order.tolist(), np.roll(order, -1).tolist() if closed else order[1:].tolist())
         crossed_faces = np.asarray([segment_face[(min(p, q), max(p, q))] for p, q in pairs], dtype=np.int64)
-        loops.append(Loop(points[order], crossed_faces, float(level), closed))
+        edges = np.column_stack([node_low[order], node_high[order]])
+        loops.append(Loop(points[order], crossed_faces, float(level), closed, None, edges, t[order]))
     loops.sort(key=lambda loop: -loop.girth)
     return loops
 
@@ -349,10 +369,27 @@ class Skeleton:
     kinds: list[str]
     loops: list[Loop | None]
     levels: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0))
+    tip_vertices: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # mesh vertex per node, −1 if not a tip
 
     @property
     def diameter(self) -> float:
         return skeleton_diameter(self.graph)
+
+    def moved(self, vertices: np.ndarray) -> "Skeleton":
+        """The same skeleton (same loops, tips and joins) on the mesh with new ``vertices``.
+
+        For a field carried unchanged to a moved mesh: every loop crosses the same edges
+        (:meth:`Loop.moved`), tips are the same vertices, and the graph keeps its edges with
+        weights re-measured, so the diameter is a continuous function of the vertices.
+        """
+        vertices = np.asarray(vertices, dtype=np.float64)
+        loops = [None if loop is None else loop.moved(vertices) for loop in self.loops]
+        points = np.asarray([vertices[tip] if loop is None else loop.centroid
+                             for loop, tip in zip(loops, self.tip_vertices.tolist())], dtype=np.float64).reshape(-1, 3)
+        graph = sparse.triu(self.graph, k=1).tocoo()
+        weights = np.maximum(np.linalg.norm(points[graph.row] - points[graph.col], axis=1), 1e-300)
+        upper = sparse.coo_matrix((weights, (graph.row, graph.col)), shape=self.graph.shape)
+        return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices)
 
 
 def skeleton_longest_path(graph: sparse.spmatrix) -> tuple[float, list[int]]:
@@ -404,6 +441,7 @@ def skeleton(
     points: list[np.ndarray] = []
     kinds: list[str] = []
     node_loops: list[Loop | None] = []
+    tip_vertices: list[int] = []
     node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
     for level in levels:
         for loop in isocontour_loops(vertices, faces, field, level):
@@ -411,11 +449,13 @@ def skeleton(
             kinds.append("section")
             node_loops.append(loop)
             node_faces.append(loop.faces)
+            tip_vertices.append(-1)
     for loop in boundary_loops(vertices, faces):
         points.append(loop.centroid)
         kinds.append("boundary")
         node_loops.append(loop)
         node_faces.append(loop.faces[loop.faces >= 0])
+        tip_vertices.append(-1)
 
     edges: set[tuple[int, int]] = set()
     bounds = np.concatenate([[-np.inf], levels, [np.inf]])
@@ -448,6 +488,7 @@ def skeleton(
                 points.append(vertices[tip])
                 kinds.append("tip")
                 node_loops.append(None)
+                tip_vertices.append(int(tip))
                 members.setdefault(part, set()).add(len(points) - 1)
         for part_nodes in members.values():
             ordered = sorted(part_nodes)
@@ -465,4 +506,4 @@ def skeleton(
         graph = (graph + graph.T).tocsr()
     else:
         graph = sparse.csr_matrix((len(points), len(points)))
-    return Skeleton(point_array, graph, kinds, node_loops, levels)
+    return Skeleton(point_array, graph, kinds, node_loops, levels, np.asarray(tip_vertices, dtype=np.int64))

@@ -471,3 +471,39 @@ def test_neck_length_of_a_coarse_horse_ignores_a_translation():
     body = quadruped.generate_quadruped("horse", vertices=1000).body()
     moved = body.with_vertices(body.vertices + np.array([5.0, 0.0, 0.0]))
     assert region_length(moved, "neck") == pytest.approx(region_length(body, "neck"), rel=1e-9)
+
+
+def _carried_measures(reference, vertices):
+    return _every_measure(measures.carry_fields(reference, reference.with_vertices(vertices)))
+
+
+def test_carried_measures_of_the_unmoved_body_are_its_own(small_horse):
+    reference = small_horse.with_vertices(small_horse.vertices.copy())
+    fresh = _every_measure(reference)
+    carried = _carried_measures(reference, reference.vertices.copy())
+    for name, (value, _) in fresh.items():
+        assert carried[name][0] == pytest.approx(value, rel=1e-12), name
+    # the carried body re-measures the reference's loops: no new skeleton is extracted
+    trial = measures.carry_fields(reference, reference.with_vertices(reference.vertices * 1.5))
+    assert "measures.carried.skeleton:neck" in trial.cache
+    assert region_length(trial, "neck") == pytest.approx(1.5 * fresh["region_length:neck"][0], rel=1e-12)
+
+
+def test_carried_measures_change_smoothly_with_the_vertices(small_horse):
+    # chest girth used to be the largest of the loops that passed a position filter on each trial,
+    # so it jumped (~1e-3) when a loop crossed the filter's limit; carried, it is the largest of a
+    # fixed set of continuous functions: a 1e-6 deformation changes every measure by O(1e-6)
+    reference = small_horse.with_vertices(small_horse.vertices.copy())
+    base = _every_measure(reference)
+    size = np.ptp(reference.vertices, axis=0).max()
+    centred = reference.vertices - reference.vertices.mean(axis=0)
+    # a smooth deformation (a bend and a bulge) of size epsilon · size
+    direction = np.column_stack([np.sin(3 * centred[:, 1] / size), centred[:, 0] ** 2 / size, np.cos(2 * centred[:, 0] / size)])
+    changes = {}
+    for epsilon in (1e-6, 2e-6):
+        moved = _carried_measures(reference, reference.vertices + epsilon * size * direction)
+        changes[epsilon] = {name: moved[name][0] / value - 1 for name, (value, _) in base.items()}
+    for name in base:
+        assert abs(changes[1e-6][name]) < 1e-4, name
+        # linear in epsilon: no jump hides in the change
+        assert changes[2e-6][name] == pytest.approx(2 * changes[1e-6][name], rel=0.01, abs=1e-9), name
