@@ -1,7 +1,6 @@
 """Plugins: hooks, the built-in plugin, discovery by entry point and by path, failures, examples."""
 from __future__ import annotations
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -15,9 +14,9 @@ import allorules
 from allorules.body import Body, Frame
 from allorules.cli import main
 from allorules.errors import PluginError
-from allorules.plugins import PluginRegistry, registry_for
+from allorules.plugins import registry_for
 from allorules.rules import list_rulesets, load_ruleset
-from allorules.specs import ConstraintContext, ConstraintSpec, MeasureSpec, ParameterSpec
+from allorules.specs import ConstraintContext, ConstraintSpec, ParameterSpec
 
 REPO = Path(__file__).resolve().parents[1]
 PLUGINS = REPO / "plugins"
@@ -285,27 +284,12 @@ def test_parameter_spec_checks():
 
 # -- discovery through an installed package's entry point -----------------------------------------
 def install_plugin(project: Path, target: Path) -> None:
-    """Install a plugin project into ``target`` as pip would (dist-info with entry_points.txt).
+    """Install a plugin project into ``target`` with pip, offline, as a user would (``pip install``).
 
-    With the ``wheel`` package available pip itself does it (offline); otherwise the same files
-    pip writes are written here from the project's pyproject.toml, so importlib.metadata finds
-    exactly what an installation provides.
+    The test extras provide setuptools and wheel, so the build needs no network.
     """
-    if importlib.util.find_spec("wheel") is not None:
-        subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index",
-                        "--quiet", "--target", str(target), str(project)], check=True)
-        return
-    import shutil
-    import tomllib
-
-    meta = tomllib.loads((project / "pyproject.toml").read_text(encoding="utf-8"))["project"]
-    for module in meta.get("entry-points", {}).get("allorules", {}).values():
-        shutil.copy(project / f"{module.split(':')[0]}.py", target)
-    dist_info = target / f"{meta['name'].replace('-', '_')}-{meta['version']}.dist-info"
-    dist_info.mkdir()
-    (dist_info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {meta['name']}\nVersion: {meta['version']}\n")
-    lines = ["[allorules]"] + [f"{name} = {value}" for name, value in meta["entry-points"]["allorules"].items()]
-    (dist_info / "entry_points.txt").write_text("\n".join(lines) + "\n")
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index",
+                    "--quiet", "--target", str(target), str(project)], check=True)
 
 
 def run_cli(*arguments: str, pythonpath: Path | None = None, cwd: Path | None = None) -> subprocess.CompletedProcess:
