@@ -39,7 +39,9 @@ def test_slope_and_r_unchanged_by_scale_and_rotation():
 def test_spectrum_command_prints_json(tmp_path, capsys):
     path = tmp_path / "capsule.ply"
     trimesh.creation.capsule(height=2.0, radius=0.4, count=[16, 16]).export(path)
-    assert main(["spectrum", str(path), "--modes", "60", "--json"]) == 0
+    plot = tmp_path / "spectrum.png"
+    assert main(["spectrum", str(path), "--modes", "60", "--json", "--plot", str(plot)]) == 0
+    assert plot.stat().st_size > 10_000
     result = json.loads(capsys.readouterr().out)
     assert {"vertices", "modes", "slope", "r"} <= result.keys()
     assert result["modes"] == 60

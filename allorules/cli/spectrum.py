@@ -39,7 +39,9 @@ def run(arguments: argparse.Namespace) -> int:
     if arguments.plot:
         from ..render import plot_spectrum
 
-        plot_spectrum(fit.eigenvalues, fit.radial, fit.slope, fit.intercept, fit.r,
+        # Draw the modes that were fitted (1 … m−1): the constant mode's λ_0 is zero up to
+        # round-off and has no place on log axes.
+        plot_spectrum(fit.eigenvalues[1:], fit.radial[1:], fit.slope, fit.intercept, fit.r,
                       path=arguments.plot, title=str(arguments.mesh))
         log.info("wrote %s", arguments.plot)
     result = {
