@@ -402,9 +402,9 @@ def scale_job(job: Job, folder: Path) -> dict[str, Any]:
 
 
 def _write_json(path: Path, document: dict) -> None:
-    from .export import atomic_write
+    from .export import write_json
 
-    atomic_write(path, json.dumps(_jsonable(document), indent=2) + "\n")
+    write_json(path, document)
 
 
 def run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Path], dict] | None = None) -> dict[str, Any]:
@@ -611,22 +611,6 @@ def write_summary(manifest: Manifest, rows: list[dict[str, Any]], *, interrupted
                                        for column in SUMMARY_COLUMNS) + " |")
     atomic_write(paths[2], "\n".join(lines) + "\n")
     return paths
-
-
-def _jsonable(value: Any) -> Any:
-    """JSON-safe: numpy to Python, NaN/inf to None (a report never holds a bare NaN)."""
-    if isinstance(value, dict):
-        return {str(key): _jsonable(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(item) for item in value]
-    if isinstance(value, Path):
-        return str(value)
-    if hasattr(value, "item") and hasattr(value, "dtype"):
-        value = value.item() if getattr(value, "ndim", 0) == 0 else value.tolist()
-        return _jsonable(value)
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 # ---------------------------------------------------------------------------------------------

@@ -24,7 +24,6 @@ empty unless ``force``.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -307,7 +306,7 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
 
 
 def _write_run(demo: DemoResult, run: DemoRun, body, force: bool) -> None:
-    from .export import atomic_write, save_mesh
+    from .export import save_mesh, write_json
 
     if run.vertices is not None and run.error is None:
         run.mesh = demo.folder / f"{run.name}.obj"
@@ -317,7 +316,7 @@ def _write_run(demo: DemoResult, run: DemoRun, body, force: bool) -> None:
     document = {"run": run.name, "mode": MODE_TITLES[run.mode], "mass_ratio": run.ratio,
                 "mesh": run.mesh.name if run.mesh else None, "seconds": run.seconds, "error": run.error,
                 "result": run.result, "rules": run.rules}
-    atomic_write(run.report, json.dumps(_jsonable(document), indent=2) + "\n")
+    write_json(run.report, document)
     demo.files.append((f"{run.name} report", run.report))
 
 
@@ -347,7 +346,7 @@ def _write_pictures(demo: DemoResult, body) -> None:
 
 
 def _write_reports(demo: DemoResult, generated, body) -> None:
-    from .export import atomic_write
+    from .export import write_json
     from .report_html import Table, write_html_report
 
     summary_path = demo.folder / "demo.json"
@@ -363,7 +362,7 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
         "files": {what: path.name for what, path in files},
         "truth": generated.truth.as_dict() if hasattr(generated.truth, "as_dict") else None,
     }
-    atomic_write(summary_path, json.dumps(_jsonable(document), indent=2) + "\n")
+    write_json(summary_path, document)
     demo.files.append(("demo report", summary_path))
 
     summary = {
@@ -399,18 +398,3 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
     demo.files.append(("HTML report", html_path))
 
 
-def _jsonable(value: Any) -> Any:
-    """JSON-safe copy: numpy to Python, NaN/inf to None (never a bare NaN in a report)."""
-    if isinstance(value, dict):
-        return {str(key): _jsonable(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(item) for item in value]
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

@@ -24,6 +24,7 @@ Helpers :func:`atomic_write` / :func:`atomic_path` are shared by the render and 
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import re
@@ -95,6 +96,28 @@ def atomic_write(path: str | Path, write: Callable[[Any], None] | bytes | str) -
                 stream.write(write.encode("utf-8") if isinstance(write, str) else write)
             stream.flush()
             os.fsync(stream.fileno())
+
+
+def jsonable(value: Any) -> Any:
+    """A JSON-safe copy: numpy scalars and arrays to Python, paths to text, NaN/inf to None."""
+    if isinstance(value, dict):
+        return {str(key): jsonable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(item) for item in value]
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def write_json(path: str | Path, document: Any) -> None:
+    """Write a report atomically as indented JSON; a report never holds a bare NaN."""
+    atomic_write(path, json.dumps(jsonable(document), indent=2, allow_nan=False) + "\n")
 
 
 # --------------------------------------------------------------------------------------------

@@ -12,7 +12,6 @@ non-zero with one line saying why (and the closest result reached), and writes o
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 from pathlib import Path
@@ -159,9 +158,9 @@ def _save(output: Path, prepared, vertices, arguments: argparse.Namespace):
 def _write_report(path: str | None, report: dict) -> None:
     if not path:
         return
-    from ..export import atomic_write
+    from ..export import write_json
 
-    atomic_write(path, json.dumps(report, indent=2, allow_nan=False) + "\n")
+    write_json(path, report)
     log.info("wrote %s", path)
 
 

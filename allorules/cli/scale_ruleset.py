@@ -16,9 +16,7 @@ which writes the mesh as ``OUT.unconverged.EXT`` with a warning, never under the
 from __future__ import annotations
 
 import argparse
-import json
 import logging
-import math
 from pathlib import Path
 
 from ..errors import AllorulesError, MeshError, ScalingError, SegmentationError
@@ -109,9 +107,9 @@ def _save(output: Path, prepared, vertices, mesh: Path, force: bool) -> None:
 
 
 def _write_report(path: str, report: dict) -> None:
-    from ..labels_io import write_atomic
+    from ..export import write_json
 
-    write_atomic(path, json.dumps(report, indent=2, allow_nan=False) + "\n")
+    write_json(path, report)
 
 
 def format_table(result) -> str:
