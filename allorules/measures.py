@@ -28,6 +28,7 @@ from .sections import (
     Loop,
     Skeleton,
     area_quantile_levels,
+    area_quantiles,
     boundary_loops,
     connected_parts,
     fiedler_vector,
@@ -214,14 +215,16 @@ def part_fields(body: Body, region: str) -> list[np.ndarray]:
 def carry_fields(reference: Body, body: Body) -> Body:
     """Measure ``body`` along the fields of ``reference`` (same faces and labels, moved vertices).
 
-    Copies the reference's region parts (connectivity) and part fields, and the loops, skeletons,
-    limbs and torso sections measured on it, as far as they have been computed, into
-    ``body.cache``: ``body``'s sections, skeletons, lengths and girths are then taken on the same
-    material curves as on the reference. Those loops cross the same mesh edges at the same place
-    along them, so they are re-measured by interpolation (:meth:`Loop.moved`) with no
-    re-extraction, the skeletons keep their nodes and joins, and the chest keeps its candidate
-    sections: every measure is then a continuous function of the vertices. Meant for an optimiser
-    that measures many trial deformations of one body. Returns ``body``.
+    Copies the reference's region parts (connectivity) and part fields, and the skeletons and
+    limbs measured on it, as far as they have been computed, into ``body.cache``: ``body``'s
+    sections, skeletons, lengths and limb girths are then taken on the same material curves as on
+    the reference. Those loops cross the same mesh edges at the same place along them, so they are
+    re-measured by interpolation (:meth:`Loop.moved`) with no re-extraction; the skeletons keep
+    their nodes and joins. The torso stays cut by planes across its axis (a tape measure, not a
+    material curve) but the chest keeps the reference's candidate sections (by their area
+    quantile), so heart girth does not jump when a section would cross the forelimbs' limit.
+    Every measure is then a continuous function of the vertices. Meant for an optimiser that
+    measures many trial deformations of one body. Returns ``body``.
     """
     if reference.faces.shape != body.faces.shape or not np.array_equal(reference.faces, body.faces):
         raise ValueError("carry_fields needs two bodies with the same faces")
@@ -238,7 +241,7 @@ def carry_fields(reference: Body, body: Body) -> Body:
             ]
         elif key.startswith("measures.fields:"):
             body.cache[key] = value
-        elif key.startswith(("measures.skeleton:", "measures.limbs:", "measures.torso:")):
+        elif key.startswith(("measures.skeleton:", "measures.limbs:", "measures.chest-candidates")):
             body.cache["measures.carried." + key[len("measures."):]] = value
         elif key.startswith("measures.carried."):   # a carried body passed on as a reference
             body.cache[key] = value
@@ -479,30 +482,26 @@ def torso_axis(body: Body) -> np.ndarray:
     return axis if axis @ (centroids["chest"] - centroids["abdomen"]) >= 0 else -axis
 
 
-def _torso_loops(body: Body, region: str, axis: np.ndarray) -> tuple[list[Loop], np.ndarray]:
+def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None) -> tuple[list[Loop], np.ndarray]:
     """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
 
-    On a carried body (:func:`carry_fields`) the reference's sections, re-measured on the moved
-    vertices (the same material curves: the planes of the reference, bent with the body).
+    Levels at the area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``); returns the
+    loops and the quantile of each (levels without a closed loop are left out).
     """
-    key = f"measures.torso:{region}"
-    if key in body.cache:
-        return body.cache[key]
     part = region_parts(body, region)[0]
-    carried = body.cache.get(f"measures.carried.torso:{region}")
-    if carried is not None:
-        body.cache[key] = ([loop.moved(part.vertices) for loop in carried[0]], carried[1])
-        return body.cache[key]
     field = part.vertices @ axis
-    levels = area_quantile_levels(part.vertices, part.faces, field, SECTION_COUNT)
+    if targets is None:
+        targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
+    levels = area_quantiles(part.vertices, part.faces, field, targets)
     loops, kept = [], []
-    for level in levels:
+    for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
+        if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
+            continue
         found = isocontour_loops(part.vertices, part.faces, field, level)
         if found:
             loops.append(found[0])
-            kept.append(level)
-    body.cache[key] = (loops, np.asarray(kept))
-    return body.cache[key]
+            kept.append(target)
+    return loops, np.asarray(kept)
 
 
 def chest_girth(body: Body) -> float:
@@ -510,25 +509,25 @@ def chest_girth(body: Body) -> float:
 
     "Behind the forelimbs" means every point of the section lies behind (along the torso axis)
     the rearmost point where the forelimbs meet the body; without forelimbs, any section. On a
-    carried body (:func:`carry_fields`) the candidate sections are the reference's, re-measured:
-    the girth is then the largest of a fixed set of continuous functions of the vertices, so it
-    does not jump when a section would cross the forelimbs' limit on a nearly identical mesh.
+    carried body (:func:`carry_fields`) the candidates are the reference's (the same area
+    quantiles of the chest, cut by planes across the axis of the moved body): the girth is then
+    the largest of a fixed set of continuous functions of the vertices, so it does not jump when
+    a section would cross the forelimbs' limit on a nearly identical mesh.
     """
     axis = torso_axis(body)
-    loops, _ = _torso_loops(body, "chest", axis)
-    key = "measures.torso:chest-behind-forelimbs"
-    if key not in body.cache:
-        carried = body.cache.get("measures.carried." + key[len("measures."):])
-        if carried is not None:
-            body.cache[key] = carried
-        elif body.has_region("forelimbs") and body.region_mask("forelimbs").any():
+    key = "measures.chest-candidates"
+    carried = body.cache.get("measures.carried.chest-candidates")
+    if carried is not None:
+        loops, _ = _torso_loops(body, "chest", axis, carried)
+    else:
+        loops, targets = _torso_loops(body, "chest", axis)
+        if body.has_region("forelimbs") and body.region_mask("forelimbs").any():
             forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
             junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
             limit = (junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min()
-            body.cache[key] = [index for index, loop in enumerate(loops) if (loop.points @ axis).max() <= limit]
-        else:
-            body.cache[key] = list(range(len(loops)))
-    loops = [loops[index] for index in body.cache[key]]
+            behind = [index for index, loop in enumerate(loops) if (loop.points @ axis).max() <= limit]
+            loops, targets = [loops[index] for index in behind], targets[behind]
+        body.cache[key] = targets
     if not loops:
         raise MeasurementError(
             "no closed section of the chest behind the forelimbs: the chest region does not go all "

@@ -330,6 +330,15 @@ def connected_parts(faces: np.ndarray) -> list[np.ndarray]:
     return parts
 
 
+def area_quantiles(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The field's values below which the given shares ``targets`` (0…1) of the area lie (vertex-area weights)."""
+    mass = lumped_mass(vertices, faces)
+    order = np.argsort(field)
+    cumulative = np.cumsum(mass[order])
+    cumulative /= cumulative[-1]
+    return np.interp(np.asarray(targets, dtype=np.float64), cumulative, field[order])
+
+
 def area_quantile_levels(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, count: int) -> np.ndarray:
     """``count`` levels at the (k + ½)/count quantiles of the field, weighted by vertex area.
 
@@ -337,12 +346,8 @@ def area_quantile_levels(vertices: np.ndarray, faces: np.ndarray, field: np.ndar
     spaced along it whatever the shape of the field's profile (a Fiedler vector is flat near the
     ends of a tube; evenly spaced *values* would crowd the middle).
     """
-    mass = lumped_mass(vertices, faces)
-    order = np.argsort(field)
-    cumulative = np.cumsum(mass[order])
-    cumulative /= cumulative[-1]
     targets = (np.arange(count) + 0.5) / count
-    levels = np.unique(np.interp(targets, cumulative, field[order]))
+    levels = np.unique(area_quantiles(vertices, faces, field, targets))
     # A level at the field's minimum or maximum is not a cross-section: at the minimum nothing
     # is below it, at the maximum its "contour" is the set where the maximum is attained. For a
     # harmonic field that set is a whole opening (a plateau of vertices at exactly 0 or 1, which
