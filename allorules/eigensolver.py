@@ -38,7 +38,7 @@ import scipy.sparse.linalg
 log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
-BAND_SIZE = 120                   # eigenpairs accepted per band (about)
+BAND_SIZE = 32                    # pairs per band: ARPACK overhead grows with it (docs/benchmarks.md)
 
 Progress = Callable[[int, int], None]
 
@@ -87,7 +87,8 @@ def smallest_eigenpairs(
 
     ``initial`` (an earlier basis of a nearby mesh with the same connectivity, (n, m)) speeds
     up the solve; ``progress(done, total)`` is called as eigenpairs are accepted. ``method`` is
-    ``"auto"`` (dense for small meshes, else bands), ``"dense"``, ``"bands"`` or ``"eigsh"``.
+    ``"auto"`` (dense for small meshes, one Lanczos run for at most 32 pairs, else bands),
+    ``"dense"``, ``"bands"`` or ``"eigsh"``.
     Returns ``(eigenvalues, eigenvectors)`` with eigenvalues ascending and
     ``vectors.T @ diag(mass) @ vectors = I``; each eigenvector's largest-magnitude entry is
     positive.
@@ -97,7 +98,8 @@ def smallest_eigenpairs(
         raise ValueError(f"count must be between 1 and {n}, got {count}")
     mass = np.asarray(mass, dtype=np.float64)
     if method == "auto":
-        method = "dense" if n <= DENSE_LIMIT or count >= n // 3 else "bands"
+        # A handful of pairs (a Fiedler vector) is one Lanczos run; many pairs go by bands.
+        method = "dense" if n <= DENSE_LIMIT or count >= n // 3 else "eigsh" if count <= 32 else "bands"
     if method == "dense" or count >= n - 1:
         eigenvalues, vectors = scipy.linalg.eigh(
             stiffness.toarray(), np.diag(mass), subset_by_index=[0, count - 1]
