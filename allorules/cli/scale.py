@@ -47,6 +47,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--scale", type=float, metavar="S", help="with --alpha: the isometric factor s (default 1)")
     parser.add_argument("-o", dest="output", metavar="OUT", help="output mesh (format from the extension)")
     parser.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON (also when it fails)")
+    parser.add_argument("--png", metavar="FILE.png", help="picture of the input and the output side by side, at true scale")
     parser.add_argument("--modes", type=int, metavar="M", help="harmonic basis size (default 1000, at most vertices − 1)")
     parser.add_argument("--section", metavar="REGION:FRACTION[:PART]",
                         help="load-bearing section for the stress, e.g. forelimbs:0.5 (default: the smallest limb "
@@ -93,7 +94,7 @@ def _check_arguments(arguments: argparse.Namespace) -> None:
         raise AllorulesError(f"--modes must be at least 2, got {arguments.modes}")
 
 
-def _output_path(arguments: argparse.Namespace) -> Path:
+def output_path(arguments: argparse.Namespace) -> Path:
     mesh = Path(arguments.mesh)
     if not arguments.output:
         raise AllorulesError("give the output mesh with -o OUT (e.g. -o heavier.obj)")
@@ -131,7 +132,9 @@ def _section_choice(text: str | None):
     return SectionChoice(parts[0], fraction, part)
 
 
-def _labelled_body(arguments: argparse.Namespace, prepared):
+def labelled_body(arguments: argparse.Namespace, prepared):
+    """The prepared body with regions: from ``--segmentation`` (extra regions such as a tail mapped to
+    their neighbour) or from the automatic labeller (honouring ``--up``/``--forward``)."""
     from .. import segmentation
     from ..body import Body
 
@@ -139,23 +142,37 @@ def _labelled_body(arguments: argparse.Namespace, prepared):
     if arguments.segmentation:
         path = Path(arguments.segmentation)
         if path.suffix.lower() == ".seg":
-            return segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
-        return segmentation.read_labels(path, body)
+            labelled = segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
+        else:
+            labelled = segmentation.read_labels(path, body)
+        kept = tuple(name for name in labelled.region_names if name not in segmentation.NEIGHBOUR_REGION)
+        return segmentation.map_regions(labelled, kept)
     return segmentation.label_quadruped(body, up=getattr(arguments, "up", None), forward=getattr(arguments, "forward", None))
 
 
-def _save(output: Path, prepared, vertices, arguments: argparse.Namespace):
+def save_scaled(output: Path, prepared, body, vertices, arguments: argparse.Namespace) -> None:
+    """Write the scaled body in the input's own layout (UVs, materials, detached parts kept), say
+    what the export could not carry over, and draw ``--png`` if asked."""
     import numpy as np
 
     from ..export import save_mesh
 
     if getattr(prepared, "source", None) is not None:
-        return save_mesh(output, prepared.source_positions(vertices), np.asarray(prepared.source.faces),
-                         source=prepared.source, input_path=arguments.mesh, overwrite=arguments.force)
-    return save_mesh(output, vertices, prepared.faces, input_path=arguments.mesh, overwrite=arguments.force)
+        result = save_mesh(output, prepared.source_positions(vertices), np.asarray(prepared.source.faces),
+                           source=prepared.source, input_path=arguments.mesh, overwrite=arguments.force)
+    else:
+        result = save_mesh(output, vertices, prepared.faces, input_path=arguments.mesh, overwrite=arguments.force)
+    for note in getattr(result, "notes", []) or []:
+        log.info("export: %s", note)
+    if getattr(arguments, "png", None):
+        from ..render import render_comparison
+
+        render_comparison([(body.vertices, body.faces, "input"), (vertices, body.faces, output.name)],
+                          path=arguments.png, normalise_size=False, frame=body.frame)
+        log.info("wrote %s", arguments.png)
 
 
-def _write_report(path: str | None, report: dict) -> None:
+def write_report(path: str | None, report: dict) -> None:
     if not path:
         return
     from ..export import write_json
@@ -179,7 +196,7 @@ def run_global(arguments: argparse.Namespace) -> int:
     from ..preparation import prepare_mesh
 
     _check_arguments(arguments)
-    output = _output_path(arguments)
+    output = output_path(arguments)
     section = _section_choice(arguments.section)
     prepared = prepare_mesh(arguments.mesh)
     for repair in prepared.repairs:
@@ -194,13 +211,13 @@ def run_global(arguments: argparse.Namespace) -> int:
         report = {**base, "mode": "global-raw", "alpha": float(arguments.alpha), "scale": scale,
                   "mass_ratio": body_mass(scaled) / body_mass(body),
                   "flipped_faces": count_flipped_faces(body.vertices, scaled.vertices, body.faces), "converged": True}
-        _save(output, prepared, scaled.vertices, arguments)
-        _write_report(arguments.report, report)
+        save_scaled(output, prepared, body, scaled.vertices, arguments)
+        write_report(arguments.report, report)
         print(f"{output}: α = {arguments.alpha:g}, s = {scale:g}: mass ×{report['mass_ratio']:.4f}, "
               f"{report['flipped_faces']} flipped faces")
         return 0
 
-    body = _labelled_body(arguments, prepared)
+    body = labelled_body(arguments, prepared)
     progress = _progress("scaling steps")
     try:
         result = scale_globally(body, arguments.mass_ratio, modes=arguments.modes, section=section,
@@ -208,18 +225,18 @@ def run_global(arguments: argparse.Namespace) -> int:
     except ScalingError as error:
         closest = error.closest
         if isinstance(closest, ScalingResult):
-            _write_report(arguments.report, {**base, **closest.as_dict(), "error": str(error)})
+            write_report(arguments.report, {**base, **closest.as_dict(), "error": str(error)})
         else:
-            _write_report(arguments.report, {**base, "mode": "global", "target_mass_ratio": arguments.mass_ratio,
+            write_report(arguments.report, {**base, "mode": "global", "target_mass_ratio": arguments.mass_ratio,
                                              "converged": False, "error": str(error)})
         raise
     report = {**base, **result.as_dict()}
     report.update(_independent_check(body, result))
     if not result.converged:
-        _write_report(arguments.report, report)
+        write_report(arguments.report, report)
         raise ScalingError(f"nothing written: {'; '.join(result.messages)}", closest=result)
-    _save(output, prepared, result.body.vertices, arguments)
-    _write_report(arguments.report, report)
+    save_scaled(output, prepared, body, result.body.vertices, arguments)
+    write_report(arguments.report, report)
     print(summary(output, report))
     return 0
 

@@ -23,6 +23,9 @@ from ..errors import AllorulesError, MeshError, ScalingError, SegmentationError
 
 log = logging.getLogger("allorules")
 
+# Loading, labelling, output checks and writing are shared with global scaling.
+from .scale import labelled_body, output_path, save_scaled, write_report  # noqa: E402
+
 
 def _has(parser: argparse.ArgumentParser, option: str) -> bool:
     return option in parser._option_string_actions
@@ -63,55 +66,6 @@ def wanted(arguments: argparse.Namespace) -> bool:
     return bool(getattr(arguments, "ruleset", None) or getattr(arguments, "region", None))
 
 
-def _labelled_body(arguments, prepared):
-    from .. import segmentation
-    from ..body import Body
-
-    body = Body(prepared.vertices, prepared.faces)
-    if arguments.segmentation:
-        path = Path(arguments.segmentation)
-        if path.suffix.lower() == ".seg":
-            labelled = segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
-        else:
-            labelled = segmentation.read_labels(path, body)
-        kept = tuple(name for name in labelled.region_names if name not in segmentation.NEIGHBOUR_REGION)
-        return segmentation.map_regions(labelled, kept)
-    return segmentation.label_quadruped(body, up=getattr(arguments, "up", None), forward=getattr(arguments, "forward", None))
-
-
-def _output_path(path: str | None, mesh: Path, force: bool) -> Path:
-    if not path:
-        raise AllorulesError("give the output mesh with -o OUT (e.g. -o big.obj)")
-    output = Path(path)
-    if output.resolve() == mesh.resolve():
-        raise MeshError(f"{output}: refusing to overwrite the input mesh; choose another output name")
-    if output.exists() and not force:
-        raise MeshError(f"{output}: already exists; use --force to overwrite it")
-    if not output.parent.exists():
-        raise MeshError(f"{output.parent}: folder does not exist")
-    return output
-
-
-def _save(output: Path, prepared, vertices, mesh: Path, force: bool) -> None:
-    import numpy as np
-
-    from ..export import save_mesh
-
-    if getattr(prepared, "source", None) is not None:
-        result = save_mesh(output, prepared.source_positions(vertices), np.asarray(prepared.source.faces),
-                           source=prepared.source, input_path=mesh, overwrite=force)
-    else:
-        result = save_mesh(output, vertices, prepared.faces, input_path=mesh, overwrite=force)
-    for note in getattr(result, "notes", []) or []:
-        log.info("export: %s", note)
-
-
-def _write_report(path: str, report: dict) -> None:
-    from ..export import write_json
-
-    write_json(path, report)
-
-
 def format_table(result) -> str:
     """The run as the terminal shows it: one row per rule, then the body-wide figures."""
     rows = [("rule", "region", "measure", "target", "achieved", "error")]
@@ -137,9 +91,7 @@ def run(arguments: argparse.Namespace) -> int:
     mesh = Path(arguments.mesh)
     if arguments.ruleset and arguments.region:
         raise AllorulesError("give either --ruleset (biology-aware run) or --region with --alpha (local scaling), not both")
-    output = _output_path(arguments.output, mesh, arguments.force)
-    if arguments.report and Path(arguments.report).exists() and not arguments.force:
-        raise MeshError(f"{arguments.report}: already exists; use --force to overwrite it")
+    output = output_path(arguments)
     if arguments.region:
         if arguments.alpha is None and arguments.arithmetic is None:
             raise ScalingError("--region needs --alpha A (local power law) or --arithmetic F (comparison only)")
@@ -152,7 +104,7 @@ def run(arguments: argparse.Namespace) -> int:
     prepared = prepare_mesh(mesh)
     for repair in prepared.repairs:
         log.info("prepare: %s", repair)
-    body = _labelled_body(arguments, prepared)
+    body = labelled_body(arguments, prepared)
     if arguments.region:
         return _run_local(arguments, prepared, body, mesh, output)
     return _run_ruleset(arguments, prepared, body, mesh, output)
@@ -172,12 +124,12 @@ def _run_local(arguments, prepared, body, mesh: Path, output: Path) -> int:
 
     seam = seam_strain(body.vertices, scaled.vertices, body.faces, body.region_mask(arguments.region))
     flipped = count_flipped_faces(body.vertices, scaled.vertices, body.faces)
-    _save(output, prepared, scaled.vertices, mesh, arguments.force)
+    save_scaled(output, prepared, body, scaled.vertices, arguments)
     report = {"mode": "arithmetic" if arguments.arithmetic is not None else "local", "region": arguments.region,
               "alpha": alpha, "arithmetic_factor": arguments.arithmetic, "seam": seam, "flipped_faces": flipped,
               "output": str(output)}
     if arguments.report:
-        _write_report(arguments.report, report)
+        write_report(arguments.report, report)
     print(f"{output}: region {arguments.region} "
           f"{'×' + format(arguments.arithmetic, 'g') + ' (arithmetic)' if arguments.arithmetic is not None else 'α = ' + format(alpha, 'g')}; "
           f"seam {seam['seam']:.3g} (edge strain across its boundary over the strain on either side; about 1 is seamless), "
@@ -206,7 +158,7 @@ def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
                                     progress=progress)
     except ScalingError as error:
         if arguments.report and error.closest is not None:
-            _write_report(arguments.report, error.closest.as_dict())
+            write_report(arguments.report, error.closest.as_dict())
         raise
     report = result.as_dict()
     report["input"] = str(mesh)
@@ -219,10 +171,10 @@ def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
         if written.exists() and not arguments.force:
             raise MeshError(f"{written}: already exists; use --force to overwrite it")
     if written is not None:
-        _save(written, prepared, result.body.vertices, mesh, arguments.force)
+        save_scaled(written, prepared, body, result.body.vertices, arguments)
     report["output"] = None if written is None else str(written)
     if arguments.report:
-        _write_report(arguments.report, report)
+        write_report(arguments.report, report)
     print(format_table(result))
     if not result.converged:
         for message in result.messages:
