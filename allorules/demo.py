@@ -43,7 +43,7 @@ DEFAULT_RULESET = "quadruped"
 RATIOS = (0.5, 2.0)
 # Sizes chosen so that the demo finishes in minutes on 2 cores (measured: docs/demo.md); at most
 # 2500 vertices (eigensolver.DENSE_LIMIT) the basis is one dense solve; 2500 vertices took ~10 CPU-minutes.
-DEFAULT_VERTICES = 1500
+DEFAULT_VERTICES = 2000
 DEFAULT_MODES = 60
 QUICK_VERTICES = 1000
 QUICK_MODES = 30

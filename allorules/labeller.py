@@ -95,6 +95,13 @@ def label_quadruped(body: Body, *, up=None, forward=None) -> Body:
 
         _, nearest = cKDTree(vertices[index]).query(vertices[~main])
         labels[~main] = labels_main[nearest]
+    # Never hand on a body with a region missing: every later measurement would fail on it, or worse.
+    missing = [name for index_of, name in enumerate(REGIONS) if not np.any(labels == index_of)]
+    if missing:
+        raise SegmentationError(
+            f"found no {' and no '.join(missing)} on this mesh; give the regions with --segmentation FILE "
+            "(allorules segment --patches 24 and a merge file), or try --up/--forward"
+        )
     return Body(vertices, faces, labels, REGIONS, frame)
 
 
