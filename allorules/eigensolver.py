@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from dataclasses import dataclass
 from typing import Callable
 
@@ -52,25 +51,11 @@ def _normalise_signs(vectors: np.ndarray) -> np.ndarray:
 
 
 def terminal_progress(description: str) -> Progress | None:
-    """A ``progress(done, total)`` callback drawing a tqdm bar on stderr, or ``None`` when
-    stderr is not a terminal (pipes, CI, logs stay quiet)."""
-    stream = sys.stderr
-    if not (hasattr(stream, "isatty") and stream.isatty()):
-        return None
-    from tqdm import tqdm
+    """A ``progress(done, total)`` callback drawing a bar of modes found on a terminal, or ``None``
+    when nobody would see it (see :func:`allorules.progress.count_bar`)."""
+    from .progress import count_bar
 
-    bar: list = []
-
-    def progress(done: int, total: int) -> None:
-        if not bar:
-            bar.append(tqdm(total=total, desc=description, unit="modes", file=stream, leave=False))
-        current = bar[0]
-        current.total = total
-        current.update(max(0, min(done, total) - current.n))
-        if done >= total:
-            current.close()
-
-    return progress
+    return count_bar(description, unit="modes")
 
 
 def smallest_eigenpairs(
@@ -361,7 +346,6 @@ def _spectrum_slicing(
     vectors_found: list[np.ndarray] = []
     done = 0
     lower = previous_lower = -np.inf
-    scale = float(stiffness.diagonal().max() / mass.max())
     band_index = 0
     while done < count:
         remaining = count - done

@@ -5,8 +5,8 @@ it, through the ``allorules`` logger at INFO level, so ``--quiet`` (WARNING) sil
 ``--verbose`` (DEBUG) adds the inner details the modules log themselves. Bars (tqdm) are drawn
 only when stderr is a terminal and INFO is enabled, so pipes, CI logs and tests stay clean.
 
-The bar for the harmonic basis is :func:`allorules.eigensolver.terminal_progress` (owned by the
-eigensolver); :func:`basis_bar` only decides whether to show it.
+Every bar in the package is made here by :func:`count_bar` (the eigensolver's
+``terminal_progress`` is a bar of modes found).
 """
 from __future__ import annotations
 
@@ -29,13 +29,7 @@ def showing_progress() -> bool:
 
 def basis_bar(description: str = "harmonic basis") -> ProgressCallback | None:
     """A ``progress(done, total)`` callback for an eigensolve (modes found), or ``None``."""
-    if not showing_progress():
-        return None
-    try:
-        from .eigensolver import terminal_progress
-    except ImportError:  # an eigensolver without bars: just no bar
-        return None
-    return terminal_progress(description)
+    return count_bar(description, unit="modes")
 
 
 def count_bar(description: str, unit: str = "steps") -> ProgressCallback | None:

@@ -186,7 +186,6 @@ def isocontour_loops(
     # Each node (a mesh edge) touches at most two crossing faces on a manifold mesh.
     node_count = len(unique_keys)
     incidence_node = node_of.ravel()
-    incidence_face = np.repeat(np.arange(len(crossing)), 2)
     uses = np.bincount(incidence_node, minlength=node_count)
     usable = uses[incidence_node] <= 2                   # a non-manifold edge breaks the chain
     segment_ok = usable.reshape(-1, 2).all(axis=1)

@@ -182,11 +182,9 @@ def write_report(path: str | None, report: dict) -> None:
 
 
 def _progress(description: str):
-    try:
-        from ..eigensolver import terminal_progress
-    except ImportError:  # pragma: no cover
-        return None
-    return terminal_progress(description)
+    from ..progress import count_bar
+
+    return count_bar(description)
 
 
 def run_global(arguments: argparse.Namespace) -> int:

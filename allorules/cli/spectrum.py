@@ -64,8 +64,6 @@ def run(arguments: argparse.Namespace) -> int:
 
 
 def _progress(description: str):
-    try:
-        from ..eigensolver import terminal_progress
-    except ImportError:
-        return None
-    return terminal_progress(description)
+    from ..progress import count_bar
+
+    return count_bar(description)
