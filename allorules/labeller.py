@@ -55,12 +55,14 @@ class Extremities:
     persistence: np.ndarray
 
 
-def label_quadruped(body: Body, *, up=None, forward=None) -> Body:
+def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True) -> Body:
     """Label a standing quadruped's vertices with the six regions of :data:`REGIONS`.
 
     Returns a new :class:`Body` with ``labels``, ``region_names = REGIONS`` and ``frame`` set to
     the detected (or given) ``Frame(up, forward)``. Raises :class:`SegmentationError` with a
-    one-line reason when the mesh does not look like a standing quadruped.
+    one-line reason when the mesh does not look like a standing quadruped, and (with
+    ``complete``, the default) when any region was not found. ``complete=False`` returns the
+    partial labelling instead, for diagnosis only.
     """
     vertices, faces = body.vertices, body.faces
     if len(vertices) < 50 or len(faces) < 50:
@@ -97,7 +99,7 @@ def label_quadruped(body: Body, *, up=None, forward=None) -> Body:
         labels[~main] = labels_main[nearest]
     # Never hand on a body with a region missing: every later measurement would fail on it, or worse.
     missing = [name for index_of, name in enumerate(REGIONS) if not np.any(labels == index_of)]
-    if missing:
+    if missing and complete:
         raise SegmentationError(
             f"found no {' and no '.join(missing)} on this mesh; give the regions with --segmentation FILE "
             "(allorules segment --patches 24 and a merge file), or try --up/--forward"

@@ -227,7 +227,11 @@ def test_elephant_trunk_is_not_a_foot(generated):
     """The trunk tip hangs low near the head end; the feet are the four that stand on the ground."""
     animal = generated["elephant"]
     truth = truth_body(animal)
-    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    # Head and neck are not found on the generated elephant (a recorded shortfall), so look at
+    # the partial labelling: feet, frame and legs.
+    with pytest.raises(SegmentationError, match="found no head"):
+        segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces), complete=False)
     np.testing.assert_allclose(labelled.frame.up, [0, 1, 0], atol=0.05)
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0], atol=0.05)
     limbs = np.isin(labelled.labels, [segmentation.QUADRUPED_REGIONS.index(n) for n in ("forelimbs", "hindlimbs")])
@@ -259,8 +263,12 @@ def test_up_and_forward_overrides_are_used(generated):
     labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 2, 0], forward=[3, 0, 0])
     np.testing.assert_allclose(labelled.frame.up, [0, 1, 0])
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0])
-    # Forward given backwards: the labeller follows the user (fore and hind swap).
-    backwards = segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 1, 0], forward=[-1, 0, 0])
+    # Forward given backwards: the labeller follows the user (fore and hind swap), finds no head at
+    # the tail end and says so rather than handing on empty regions.
+    with pytest.raises(SegmentationError, match="found no head"):
+        segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 1, 0], forward=[-1, 0, 0])
+    backwards = segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 1, 0], forward=[-1, 0, 0],
+                                             complete=False)
     fore = segmentation.QUADRUPED_REGIONS.index("forelimbs")
     hind = segmentation.QUADRUPED_REGIONS.index("hindlimbs")
     np.testing.assert_array_equal(backwards.labels == fore, labelled.labels == hind)
