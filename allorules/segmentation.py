@@ -98,3 +98,21 @@ def write_preview(body: Body, path, *, numbered: bool = False, title: str | None
     legend = None if numbered else render.region_legend(body.labels, body.region_names)
     return render.render_views(body.vertices, body.faces, path=path, views=views, frame=body.frame,
                                vertex_colors=colors, annotations=annotations or None, title=title, legend=legend)
+
+
+def labelled_body(body: Body, labels_path=None, *, up=None, forward=None) -> Body:
+    """``body`` with regions: read from ``labels_path`` (labels JSON or Princeton ``.seg``; extra
+    regions such as a tail folded into their neighbour) or, without a file, from the automatic
+    labeller (honouring ``up``/``forward``)."""
+    from pathlib import Path
+
+    if labels_path is None:
+        return label_quadruped(body, up=up, forward=forward)
+    path = Path(labels_path)
+    if path.suffix.lower() == ".seg":
+        labelled = read_seg(path, body, QUADRUPED_REGIONS)
+    else:
+        labelled = read_labels(path, body)
+    kept = tuple(name for name in labelled.region_names if name not in NEIGHBOUR_REGION)
+    return map_regions(labelled, kept)
+

@@ -48,29 +48,11 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 def segmented_body(arguments: argparse.Namespace):
     """The prepared body with regions from the given file or the automatic labeller."""
-    from .. import segmentation
+    from ..segmentation import labelled_body
 
     body = load_body(arguments.mesh)
-    if arguments.segmentation:
-        path = Path(arguments.segmentation)
-        if path.suffix.lower() == ".seg":
-            labelled = segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
-        else:
-            labelled = segmentation.read_labels(path, body)
-        labelled = segmentation.map_regions(labelled, _regions_with_extras(labelled.region_names))
-        source = str(path)
-    else:
-        labelled = segmentation.label_quadruped(body, up=arguments.up, forward=arguments.forward)
-        source = "automatic"
-    return labelled, source
-
-
-def _regions_with_extras(names):
-    """Keep the file's own regions, folding the known extras (tail, ears, …) into their neighbour."""
-    from ..segmentation import NEIGHBOUR_REGION
-
-    kept = tuple(name for name in names if name not in NEIGHBOUR_REGION)
-    return kept
+    labelled = labelled_body(body, arguments.segmentation or None, up=arguments.up, forward=arguments.forward)
+    return labelled, str(arguments.segmentation) if arguments.segmentation else "automatic"
 
 
 def run(arguments: argparse.Namespace) -> int:

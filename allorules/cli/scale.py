@@ -133,21 +133,12 @@ def _section_choice(text: str | None):
 
 
 def labelled_body(arguments: argparse.Namespace, prepared):
-    """The prepared body with regions: from ``--segmentation`` (extra regions such as a tail mapped to
-    their neighbour) or from the automatic labeller (honouring ``--up``/``--forward``)."""
-    from .. import segmentation
+    """The prepared body with regions from ``--segmentation`` or the automatic labeller."""
     from ..body import Body
+    from ..segmentation import labelled_body as with_regions
 
-    body = Body(prepared.vertices, prepared.faces)
-    if arguments.segmentation:
-        path = Path(arguments.segmentation)
-        if path.suffix.lower() == ".seg":
-            labelled = segmentation.read_seg(path, body, segmentation.QUADRUPED_REGIONS)
-        else:
-            labelled = segmentation.read_labels(path, body)
-        kept = tuple(name for name in labelled.region_names if name not in segmentation.NEIGHBOUR_REGION)
-        return segmentation.map_regions(labelled, kept)
-    return segmentation.label_quadruped(body, up=getattr(arguments, "up", None), forward=getattr(arguments, "forward", None))
+    return with_regions(Body(prepared.vertices, prepared.faces), arguments.segmentation or None,
+                        up=getattr(arguments, "up", None), forward=getattr(arguments, "forward", None))
 
 
 def save_scaled(output: Path, prepared, body, vertices, arguments: argparse.Namespace) -> None:
