@@ -98,57 +98,16 @@ def _safe_name(text: str) -> str:
 
 
 def _read_yaml(path: Path):
-    """(data, location-of(keys)) of a YAML file, with file:line errors (the rules module's reader)."""
-    import yaml
+    """(data, location-of(keys)) of a manifest, with file:line errors (the rules module's reader)."""
+    from .rules import read_located_yaml
 
-    from .rules import _index_nodes, _Loader
-
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except FileNotFoundError:
-        raise ManifestError(f"manifest {path} does not exist; check the path") from None
-    except IsADirectoryError:
-        raise ManifestError(f"{path} is a folder; give the manifest .yaml file") from None
-    except UnicodeDecodeError as error:
-        raise ManifestError(f"{path} is not UTF-8 text (byte {error.start}); save it as UTF-8") from None
-    except OSError as error:
-        raise ManifestError(f"cannot read manifest {path}: {error.strerror or error}") from None
-    try:
-        loader = _Loader(text)
-    except yaml.YAMLError as error:
-        raise ManifestError(f"not readable as YAML: {' '.join(str(error).split())}", SourceLocation(path, 1)) from None
-    where: dict[tuple, SourceLocation] = {}
-    key_where: dict[tuple, SourceLocation] = {}
-    try:
-        node = loader.get_single_node()
-        if node is None:
-            raise ManifestError("the manifest is empty; it needs at least 'meshes', 'ratios' and 'rulesets'",
-                                SourceLocation(path, 1))
-        problems: list[RulesetError] = []
-        _index_nodes(path, node, (), where, key_where, problems, depth=0)
-        if problems:
-            raise ManifestError(str(problems[0]).split(": ", 1)[-1] if problems[0].location else str(problems[0]),
-                                problems[0].location)
-        data = loader.construct_document(node)
-    except yaml.MarkedYAMLError as error:
-        mark = error.problem_mark or error.context_mark
-        problem = " ".join(str(part) for part in (error.context, error.problem) if part)
-        raise ManifestError(f"YAML syntax error: {problem}; fix the YAML there",
-                            SourceLocation(path, mark.line + 1, mark.column + 1) if mark else SourceLocation(path)) from None
-    except yaml.YAMLError as error:
-        raise ManifestError(f"YAML error: {str(error).splitlines()[0]}", SourceLocation(path)) from None
-    finally:
-        loader.dispose()
+    document = read_located_yaml(path, kind="manifest", error=ManifestError,
+                                 empty="the manifest is empty; it needs at least 'meshes', 'ratios' and 'rulesets'")
 
     def at(*keys, key: bool = False) -> SourceLocation:
-        keys = tuple(keys)
-        if key and keys in key_where:
-            return key_where[keys]
-        while keys and keys not in where:
-            keys = keys[:-1]
-        return where.get(keys, SourceLocation(path, 1))
+        return document.key_at(*keys) if key else document.at(*keys)
 
-    return data, at
+    return document.data, at
 
 
 def _list(data: dict, key: str, at, what: str) -> list:

@@ -66,5 +66,6 @@ class RulesetError(AllorulesError):
     """A ruleset (or merge file) is invalid; the message names file and line."""
 
     def __init__(self, message: str, location: SourceLocation | None = None):
+        self.problem = message       # the message without its location
         self.location = location
         super().__init__(f"{location}: {message}" if location else message)

@@ -158,11 +158,11 @@ _Loader.add_implicit_resolver(
 
 
 @dataclass
-class _Document:
-    """One YAML file: its data and where each value was written."""
+class LocatedDocument:
+    """One YAML file: its data and where each value was written (for file:line errors)."""
 
     path: Path
-    data: dict[str, Any]
+    data: Any
     where: dict[tuple, SourceLocation]      # path of keys/indices -> location of the value
     key_where: dict[tuple, SourceLocation]  # path -> location of the mapping key itself
 
@@ -181,51 +181,65 @@ def _location(path: Path, node: yaml.Node) -> SourceLocation:
     return SourceLocation(path, node.start_mark.line + 1, node.start_mark.column + 1)
 
 
-def _read_document(path: Path) -> _Document:
+def read_located_yaml(path: Path, *, kind: str = "ruleset", error: type[RulesetError] = RulesetError,
+                      empty: str = "the ruleset is empty; it needs at least 'regions' and 'rules' or 'extends'",
+                      ) -> LocatedDocument:
+    """Read one YAML file safely, remembering where every value was written.
+
+    ``kind`` names the file in messages ("ruleset", "manifest"); every problem raises ``error``
+    with the file and line. Duplicate keys and non-text keys are refused (YAML would silently keep
+    the last); several such problems in a ruleset are raised together as :class:`RulesetProblems`.
+    """
     try:
         raw = path.read_bytes()
     except IsADirectoryError:
-        raise RulesetError(f"{path} is a folder; give a ruleset .yaml file") from None
+        raise error(f"{path} is a folder; give the {kind} .yaml file") from None
     except FileNotFoundError:
-        raise RulesetError(f"ruleset file {path} does not exist; check the path") from None
-    except OSError as error:
-        raise RulesetError(f"cannot read ruleset {path}: {error.strerror or error}") from None
+        raise error(f"{kind} file {path} does not exist; check the path") from None
+    except OSError as problem:
+        raise error(f"cannot read {kind} {path}: {problem.strerror or problem}") from None
     try:
         text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as error:
-        raise RulesetError(f"{path} is not UTF-8 text (byte {error.start}); save it as UTF-8") from None
+    except UnicodeDecodeError as problem:
+        raise error(f"{path} is not UTF-8 text (byte {problem.start}); save it as UTF-8") from None
     try:
         loader = _Loader(text)
-    except yaml.YAMLError as error:   # characters YAML does not allow (control characters, ...)
-        raise RulesetError(f"not readable as YAML: {' '.join(str(error).split())}; remove that character",
-                           SourceLocation(path, text.count(chr(10), 0, getattr(error, "position", 0)) + 1)) from None
+    except yaml.YAMLError as problem:   # characters YAML does not allow (control characters, ...)
+        raise error(f"not readable as YAML: {' '.join(str(problem).split())}; remove that character",
+                    SourceLocation(path, text.count(chr(10), 0, getattr(problem, "position", 0)) + 1)) from None
     try:
         node = loader.get_single_node()
         if node is None:
-            raise RulesetError("the ruleset is empty; it needs at least 'regions' and 'rules' or 'extends'",
-                               SourceLocation(path, 1))
+            raise error(empty, SourceLocation(path, 1))
         problems: list[RulesetError] = []
         where: dict[tuple, SourceLocation] = {}
         key_where: dict[tuple, SourceLocation] = {}
         _index_nodes(path, node, (), where, key_where, problems, depth=0)
-        if problems:
+        if problems and error is RulesetError:
             raise RulesetProblems(problems)
+        if problems:
+            raise error(problems[0].problem, problems[0].location)
         data = loader.construct_document(node)
-    except yaml.MarkedYAMLError as error:
-        mark = error.problem_mark or error.context_mark
+    except yaml.MarkedYAMLError as problem:
+        mark = problem.problem_mark or problem.context_mark
         location = SourceLocation(path, mark.line + 1, mark.column + 1) if mark else SourceLocation(path)
-        problem = " ".join(str(part) for part in (error.context, error.problem) if part)
-        raise RulesetError(f"YAML syntax error: {problem}; fix the YAML there", location) from None
-    except yaml.YAMLError as error:
-        raise RulesetError(f"YAML error: {str(error).splitlines()[0]}", SourceLocation(path)) from None
+        described = " ".join(str(part) for part in (problem.context, problem.problem) if part)
+        raise error(f"YAML syntax error: {described}; fix the YAML there", location) from None
+    except yaml.YAMLError as problem:
+        raise error(f"YAML error: {str(problem).splitlines()[0]}", SourceLocation(path)) from None
     except RecursionError:
-        raise RulesetError("the YAML nests too deeply", SourceLocation(path)) from None
+        raise error("the YAML nests too deeply", SourceLocation(path)) from None
     finally:
         loader.dispose()
-    if not isinstance(data, dict):
-        raise RulesetError(f"a ruleset is a mapping of keys (name, regions, rules, ...), not {_kind(data)}",
-                           SourceLocation(path, node.start_mark.line + 1))
-    return _Document(path, data, where, key_where)
+    return LocatedDocument(path, data, where, key_where)
+
+
+def _read_document(path: Path) -> LocatedDocument:
+    document = read_located_yaml(path)
+    if not isinstance(document.data, dict):
+        raise RulesetError(f"a ruleset is a mapping of keys (name, regions, rules, ...), not {_kind(document.data)}",
+                           document.at())
+    return document
 
 
 def _index_nodes(path: Path, node: yaml.Node, keys: tuple, where: dict, key_where: dict,
@@ -301,7 +315,7 @@ def _validator():
     return jsonschema.Draft7Validator(ruleset_schema())
 
 
-def _schema_problems(document: _Document) -> list[RulesetError]:
+def _schema_problems(document: LocatedDocument) -> list[RulesetError]:
     problems = []
     errors = sorted(_validator().iter_errors(document.data), key=lambda e: (list(map(str, e.absolute_path)), e.validator))
     for error in errors:
@@ -313,7 +327,7 @@ def _schema_problems(document: _Document) -> list[RulesetError]:
     return sorted(unique.values(), key=lambda p: (p.location.line or 0) if p.location else 0)
 
 
-def _schema_error(document: _Document, error) -> RulesetError:
+def _schema_error(document: LocatedDocument, error) -> RulesetError:
     keys = tuple(error.absolute_path)
     what = _describe_place(document.data, keys)
     value = error.instance
@@ -550,7 +564,7 @@ def _extends_target(value: str, path: Path, registry: "PluginRegistry", at: Sour
     return find_ruleset(value, registry, at)
 
 
-def _apply(document: _Document, merged: _Merged) -> None:
+def _apply(document: LocatedDocument, merged: _Merged) -> None:
     """Lay one document over what it extends (``merged``), in place."""
     data = document.data
     for key in ("description", "regions", "segmenter"):
