@@ -35,9 +35,10 @@ import os
 import re
 import time
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from . import __version__
 from .errors import AllorulesError, RulesetError, SourceLocation
@@ -366,9 +367,35 @@ def _write_json(path: Path, document: dict) -> None:
     write_json(path, document)
 
 
+@contextmanager
+def messages_named(job_id: str) -> Iterator[None]:
+    """Prefix every ``allorules`` log message with ``job_id`` while a job runs.
+
+    Workers run in parallel and print to the same terminal: a warning such as "horse.obj: UVs
+    dropped" must say which job (mesh × ratio × ruleset) it came from."""
+    previous = logging.getLogRecordFactory()
+
+    def named(*args, **kwargs) -> logging.LogRecord:
+        record = previous(*args, **kwargs)
+        if record.name == "allorules" or record.name.startswith("allorules."):
+            record.msg = f"{job_id}: {record.msg}"
+        return record
+
+    logging.setLogRecordFactory(named)
+    try:
+        yield
+    finally:
+        logging.setLogRecordFactory(previous)
+
+
 def run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Path], dict] | None = None) -> dict[str, Any]:
     """Run one job and write its report (the done marker) atomically; never raises for a job
-    that fails (the failure is its report), only for interruptions."""
+    that fails (the failure is its report), only for interruptions. Its log messages name it."""
+    with messages_named(job.id):
+        return _run_job(job, output, fingerprint, scale)
+
+
+def _run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Path], dict] | None) -> dict[str, Any]:
     folder = output / job.id
     folder.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()

@@ -14,6 +14,7 @@ from allorules.batch import (
     job_fingerprint,
     load_manifest,
     run_batch,
+    run_job,
     scale_job,
 )
 from allorules.cli import main
@@ -162,6 +163,28 @@ def test_a_report_is_finished_only_with_its_fingerprint_and_mesh(inputs, tmp_pat
     assert not is_finished(job, folder, "changed")
     (folder / "report.json").write_text("{ half written")
     assert not is_finished(job, folder, "abc")
+
+
+def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
+    """Workers share one terminal: a warning from deep inside a job (export, say) names the job."""
+    import logging
+
+    copy_inputs(inputs, tmp_path)
+    job = load_manifest(write_manifest(tmp_path, MANIFEST)).jobs()[0]
+
+    def scale(job, folder):
+        logging.getLogger("allorules.export").warning("%s: UVs dropped", "horse.obj")
+        logging.getLogger("somebody.else").warning("not ours")
+        return {}
+
+    with caplog.at_level(logging.WARNING):
+        report = run_job(job, tmp_path / "out", "fingerprint", scale)
+    assert report["status"] == "done"
+    messages = {record.name: record.getMessage() for record in caplog.records}
+    assert messages["allorules.export"] == f"{job.id}: horse.obj: UVs dropped"
+    assert messages["somebody.else"] == "not ours"
+    logging.getLogger("allorules").warning("after the job")
+    assert caplog.records[-1].getMessage() == "after the job"
 
 
 def test_a_ruleset_job_is_named_and_validated(inputs, tmp_path):
