@@ -26,20 +26,19 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from .basis import HarmonicBasis, compute_basis, transform
+from .basis import HarmonicBasis, transform
 from .body import Body
-from .errors import AllorulesError, BasisError, ScalingError, SegmentationError
-from .global_scaling import StressGauge, check_mass_ratio, count_flipped_faces, step_ratios
+from .errors import AllorulesError, ScalingError, SegmentationError
+from .global_scaling import StressGauge, check_mass_ratio, count_flipped_faces, step_basis, step_ratios
+from .progress import RunProgress
 from .scaling import (
     apply_to_mesh,
     dimensionless,
     edited_coefficients,
     local_power_law,
-    relative_eigenvalues,
 )
 from .solver import cached_measure, energy_terms, solve_step
 from .specs import ConstraintContext
@@ -156,15 +155,6 @@ class BiologyScalingResult:
 # Helpers
 
 
-def _basis_for(body: Body, modes: int | None, warm_start: HarmonicBasis | None, use_cache: bool) -> HarmonicBasis:
-    basis = compute_basis(body.vertices, body.faces, modes, use_cache=use_cache, warm_start=warm_start)
-    try:
-        relative_eigenvalues(basis.eigenvalues)
-    except ValueError as error:
-        raise BasisError(f"cannot scale this mesh: {error}") from None
-    return basis
-
-
 def _check_regions(body: Body, ruleset) -> None:
     needed = set(ruleset.regions) | {rule.region for rule in ruleset.rules if rule.region}
     missing = sorted(region for region in needed if not body.has_region(region) or body.labels is None
@@ -209,13 +199,14 @@ def scale_with_ruleset(
     modes: int | None = None,
     section=None,
     use_cache: bool = True,
-    progress: Callable[[int, int], None] | None = None,
+    progress: RunProgress | None = None,
 ) -> BiologyScalingResult:
     """Scale a labelled ``body`` by the mass ratio R following ``ruleset`` (METHOD §6).
 
     ``registry``: the plugin registry the ruleset was loaded with (default: built-ins and entry
     points). ``modes``: basis size (default 1000). ``section``: a
-    :class:`allorules.measures.SectionChoice` overriding the load-bearing section. Returns a
+    :class:`allorules.measures.SectionChoice` overriding the load-bearing section. ``progress``
+    is told of the steps, each basis and each trial (:class:`allorules.progress.RunProgress`). Returns a
     result whose ``converged`` says whether every target was met within the documented
     tolerances; ``messages`` says what was missed. Raises :class:`ScalingError` only when a step
     cannot be solved at all (``closest`` = the result so far).
@@ -233,13 +224,15 @@ def scale_with_ruleset(
                                   section=gauge.describe() if gauge else None)
 
     current, basis, jacobian, start = initial, None, None, None
+    progress = progress or RunProgress()
     for index, ratio in enumerate(ratios):
+        progress.step_started(index + 1, len(ratios))
         started = time.perf_counter()
-        basis = _basis_for(current, modes, basis, use_cache)
+        basis = step_basis(current, modes, basis, use_cache, progress.basis)
         solving = time.perf_counter()
         try:
             solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian,
-                                  start=start)
+                                  start=start, on_trial=progress.trial)
         except ScalingError as error:
             result.body = current
             _finish(result, initial, ruleset, registry, measure, gauge)
@@ -264,8 +257,7 @@ def scale_with_ruleset(
         log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
                   solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
         current = following
-        if progress is not None:
-            progress(index + 1, len(ratios))
+        progress.step_finished(index + 1, len(ratios))
     result.body = current
     _finish(result, initial, ruleset, registry, measure, gauge)
     return result
@@ -345,7 +337,7 @@ def scale_region(
                                 "label it first (allorules segment) or give --segmentation FILE")
     if not math.isfinite(alpha):
         raise ScalingError(f"alpha must be a finite number, got {alpha}")
-    basis = basis or _basis_for(body, modes, None, use_cache)
+    basis = basis or step_basis(body, modes, None, use_cache)
     if arithmetic_factor is not None:
         if not (math.isfinite(arithmetic_factor) and arithmetic_factor > 0):
             raise ScalingError(f"the arithmetic factor must be a positive number, got {arithmetic_factor}")

@@ -277,7 +277,7 @@ def _prepare(demo: DemoResult, steps, preset: str, vertices: int, force: bool, r
 
 
 def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> DemoRun:
-    from .progress import count_bar
+    from .progress import run_progress
 
     run = DemoRun(mode, ratio)
     start = time.perf_counter()
@@ -286,12 +286,12 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
         if mode == "global":
             from .global_scaling import scale_globally
 
-            result = scale_globally(body, ratio, modes=modes, progress=count_bar(run.name, "steps"))
+            result = scale_globally(body, ratio, modes=modes, progress=run_progress(run.name))
         else:
             from .biology_scaling import scale_with_ruleset
 
             result = scale_with_ruleset(body, ruleset, ratio, registry=registry, modes=modes,
-                                        progress=count_bar(run.name, "steps"))
+                                        progress=run_progress(run.name))
     except ScalingError as error:
         run.error = str(error)
         result = error.closest if getattr(error, "closest", None) is not None and hasattr(error.closest, "body") else None

@@ -40,6 +40,7 @@ from scipy.optimize import brentq
 from .basis import HarmonicBasis, compute_basis, transform
 from .body import Body
 from .errors import AllorulesError, BasisError, MeasurementError, ScalingError
+from .progress import RunProgress
 from .scaling import apply_to_mesh, global_allometric, relative_eigenvalues
 
 log = logging.getLogger("allorules")
@@ -279,8 +280,12 @@ def _default_mass(body: Body) -> float:
     return body_mass(body)
 
 
-def _basis_for(body: Body, modes: int | None, warm_start: HarmonicBasis | None, use_cache: bool) -> HarmonicBasis:
-    basis = compute_basis(body.vertices, body.faces, modes, use_cache=use_cache, warm_start=warm_start)
+def step_basis(body: Body, modes: int | None, warm_start: HarmonicBasis | None, use_cache: bool,
+               progress: Callable[[int, int], None] | None = None) -> HarmonicBasis:
+    """A scaling step's basis on its start mesh, warm-started from the previous step's; refuses a
+    mesh whose spectrum cannot be made dimensionless (λ_1 = 0: more than one piece)."""
+    basis = compute_basis(body.vertices, body.faces, modes, use_cache=use_cache, warm_start=warm_start,
+                          progress=progress)
     try:
         relative_eigenvalues(basis.eigenvalues)
     except ValueError as error:
@@ -307,8 +312,10 @@ def _solve_step(
     mass: Callable[[Body], float],
     stress: StressMeasure,
     alpha_limit: float,
+    on_trial: Callable[[int, float], None] | None = None,
 ) -> tuple[np.ndarray, _Trial, int]:
-    """Find α (and s) with ρ(α) = target; returns the new vertices, the solution, evaluations."""
+    """Find α (and s) with ρ(α) = target; returns the new vertices, the solution, evaluations.
+    ``on_trial(count, misfit)`` is told of every trial mesh (misfit: best log(ρ/r)² so far)."""
     vertices = body.vertices
     coefficients = transform(basis, vertices)
     mass_0, stress_0 = mass(body), stress(body)
@@ -323,6 +330,8 @@ def _solve_step(
         scale = stress_0 / stress_1                                  # σ(s, α) = s·σ(1, α) = σ_0
         result = _Trial(alpha, scale, scale ** 3 * mass_1 / mass_0, 1.0)  # M(s, α) = s³·M(1, α)
         trials.append(result)
+        if on_trial is not None:
+            on_trial(len(trials), min(math.log(t.mass_ratio / target) ** 2 for t in trials))
         return result
 
     def residual(alpha: float) -> float:
@@ -393,14 +402,15 @@ def scale_globally(
     step_down: float = STEP_DOWN,
     alpha_limit: float = ALPHA_LIMIT,
     use_cache: bool = True,
-    progress: Callable[[int, int], None] | None = None,
+    progress: RunProgress | None = None,
 ) -> ScalingResult:
     """Scale ``body`` so that its mass changes by ``mass_ratio`` with peak stress unchanged.
 
     ``stress`` (Body → σ) replaces the default, which freezes the load-bearing limb section of
     the input (``section``: an optional :class:`allorules.measures.SectionChoice`) and follows it
     (:class:`StressGauge`); the default needs a labelled body with a limb region. ``mass``
-    replaces :func:`allorules.measures.body_mass`. Raises :class:`ScalingError` (with
+    replaces :func:`allorules.measures.body_mass`. ``progress`` is told of the steps, each basis
+    and each trial (:class:`allorules.progress.RunProgress`). Raises :class:`ScalingError` (with
     ``closest`` = the partial result) when a step's α cannot be found.
     """
     target = check_mass_ratio(mass_ratio)
@@ -415,10 +425,13 @@ def scale_globally(
     result = ScalingResult(body=initial, target_mass_ratio=target, section=gauge.describe(initial.vertices) if gauge else None)
     basis = None
     current = initial
+    progress = progress or RunProgress()
     for index, ratio in enumerate(ratios):
-        basis = _basis_for(current, modes, basis, use_cache)
+        progress.step_started(index + 1, len(ratios))
+        basis = step_basis(current, modes, basis, use_cache, progress.basis)
         try:
-            new_vertices, solution, evaluations = _solve_step(current, basis, ratio, mass, stress, alpha_limit)
+            new_vertices, solution, evaluations = _solve_step(current, basis, ratio, mass, stress, alpha_limit,
+                                                              progress.trial)
         except ScalingError as error:
             result.body = current
             _finish(result, initial, mass_initial, stress_initial, mass, stress)
@@ -443,8 +456,7 @@ def scale_globally(
         log.debug("step %d/%d: α = %.5f, s = %.5f, mass ×%.5f, stress ×%.5f", index + 1, len(ratios),
                   step.alpha, step.scale, step.mass_ratio, step.stress_ratio)
         current = following
-        if progress is not None:
-            progress(index + 1, len(ratios))
+        progress.step_finished(index + 1, len(ratios))
     result.body = current
     _finish(result, initial, mass_initial, stress_initial, mass, stress)
     result.converged = (abs(math.log(result.mass_ratio / target)) < 1e-4 and abs(math.log(result.stress_ratio)) < 1e-4)
@@ -480,7 +492,7 @@ def scale_globally_raw(
     if abs(alpha) > ALPHA_LIMIT:
         raise ScalingError(f"|alpha| = {abs(alpha):g} is beyond {ALPHA_LIMIT:g}: the fine modes would be scaled "
                            "by absurd factors; typical values are within ±0.2")
-    basis = _basis_for(body, modes, None, use_cache)
+    basis = step_basis(body, modes, None, use_cache)
     coefficients = transform(basis, body.vertices)
     vertices = apply_to_mesh(basis, body.vertices, global_allometric(coefficients, basis.eigenvalues, alpha, scale), scale,
                              coefficients=coefficients)

@@ -6,7 +6,9 @@ it, through the ``allorules`` logger at INFO level, so ``--quiet`` (WARNING) sil
 only when stderr is a terminal and INFO is enabled, so pipes, CI logs and tests stay clean.
 
 Every bar in the package is made here by :func:`count_bar` (the eigensolver's
-``terminal_progress`` is a bar of modes found).
+``terminal_progress`` is a bar of modes found). A multi-step scaling run reports to a
+:class:`RunProgress`: its steps, each step's basis (modes found) and each step's solve (trial
+meshes measured); :func:`run_progress` gives the terminal one, with a bar for each.
 """
 from __future__ import annotations
 
@@ -50,6 +52,82 @@ def count_bar(description: str, unit: str = "steps") -> ProgressCallback | None:
             bar.close()
 
     return progress
+
+
+class RunProgress:
+    """What a multi-step scaling run reports as it goes; this base class ignores all of it.
+
+    ``scale_globally`` and ``scale_with_ruleset`` call, for step k of n: ``step_started(k, n)``;
+    ``basis(done, total)`` as the step's eigenpairs are found (not called when the basis comes from
+    the cache); ``trial(count, misfit)`` after each trial mesh the step's solver measures (``misfit``
+    = the best energy so far, the sum of squared relative residuals); ``step_finished(k, n)``.
+    Subclass it to show progress elsewhere (a GUI, a log).
+    """
+
+    def step_started(self, step: int, steps: int) -> None:
+        """Step ``step`` (1-based) of ``steps`` begins."""
+
+    def basis(self, done: int, total: int) -> None:
+        """``done`` of the step's ``total`` eigenpairs are found."""
+
+    def trial(self, count: int, misfit: float) -> None:
+        """The step's solver has measured ``count`` trial meshes; the best misfit so far."""
+
+    def step_finished(self, step: int, steps: int) -> None:
+        """Step ``step`` of ``steps`` is done."""
+
+
+class TerminalRunProgress(RunProgress):
+    """tqdm bars on stderr: the run's steps, and under them the current step's basis, then its trials."""
+
+    def __init__(self, description: str = "scaling steps"):
+        from tqdm import tqdm
+
+        self._tqdm = tqdm
+        self.description = description
+        self._steps = None
+        self._inner = None
+        self._step = 0
+
+    def _close_inner(self) -> None:
+        if self._inner is not None:
+            self._inner.close()
+            self._inner = None
+
+    def step_started(self, step: int, steps: int) -> None:
+        if self._steps is None:
+            self._steps = self._tqdm(total=steps, desc=self.description, unit="steps", file=sys.stderr, leave=False,
+                                     position=0)
+        self._step = step
+
+    def basis(self, done: int, total: int) -> None:
+        if self._inner is None:
+            self._inner = self._tqdm(total=total, desc=f"step {self._step}: harmonic basis", unit="modes",
+                                     file=sys.stderr, leave=False, position=1)
+        self._inner.update(max(0, min(done, total) - self._inner.n))
+        if done >= total:
+            self._close_inner()
+
+    def trial(self, count: int, misfit: float) -> None:
+        if self._inner is None:
+            self._inner = self._tqdm(desc=f"step {self._step}: solving", unit="trials", file=sys.stderr, leave=False,
+                                     position=1)
+        self._inner.update(count - self._inner.n)
+        self._inner.set_postfix_str(f"misfit {misfit:.1e}", refresh=False)
+
+    def step_finished(self, step: int, steps: int) -> None:
+        self._close_inner()
+        if self._steps is not None:
+            self._steps.update(step - self._steps.n)
+            if step >= steps:
+                self._steps.close()
+                self._steps = None
+
+
+def run_progress(description: str = "scaling steps") -> RunProgress:
+    """Bars for a scaling run when the user watches a terminal (see :func:`showing_progress`),
+    otherwise a :class:`RunProgress` that shows nothing."""
+    return TerminalRunProgress(description) if showing_progress() else RunProgress()
 
 
 class Steps:

@@ -198,8 +198,10 @@ class Evaluation:
 class StepEnergy:
     """The energy of Eq. 11 for one step, assembled from a ruleset (see the module docstring)."""
 
-    def __init__(self, transform_: StepTransform, ruleset, registry, mass_ratio: float, measure: Measure):
+    def __init__(self, transform_: StepTransform, ruleset, registry, mass_ratio: float, measure: Measure,
+                 on_trial: Callable[[int, float], None] | None = None):
         self.transform = transform_
+        self.on_trial = on_trial
         self.ruleset = ruleset
         self.registry = registry
         self.mass_ratio = float(mass_ratio)
@@ -246,6 +248,8 @@ class StepEnergy:
         self.evaluations.append(evaluation)
         if evaluation.failure is None and (self.best is None or evaluation.energy < self.best.energy):
             self.best = evaluation
+        if self.on_trial is not None:
+            self.on_trial(len(self.evaluations), self.best.misfit if self.best is not None else math.inf)
         return evaluation
 
     def done(self) -> bool:
@@ -361,19 +365,21 @@ def solve_step(
     measure: Measure | None = None,
     start: np.ndarray | None = None,
     jacobian: np.ndarray | None = None,
+    on_trial: Callable[[int, float], None] | None = None,
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
     ``body`` is the step's start mesh (labelled with the ruleset's regions), ``basis`` its harmonic
     basis, ``mass_ratio`` the step's r. ``start`` overrides the starting point (default s = r^(1/3),
     α = 0); ``jacobian`` (from the previous step's solution) saves the finite differences.
+    ``on_trial(count, misfit)`` is told of every trial mesh measured (misfit: the best so far).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions)
     step = StepTransform.of(body, basis, regions)
-    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure)
+    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial)
 
     count = 2 + len(regions)
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)

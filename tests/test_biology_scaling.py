@@ -93,8 +93,12 @@ def test_quadruped_ruleset_meets_every_target(animal, registry, ratio):
 
 
 def test_isometric_ruleset_is_uniform_scaling(animal, registry):
-    result = _run(animal, registry, load_ruleset("isometric", registry), 2.0)
+    from progress_recorder import RecordingProgress
+
+    progress = RecordingProgress()
+    result = _run(animal, registry, load_ruleset("isometric", registry), 2.0, progress=progress)
     assert len(result.steps) == 8
+    progress.check(8, [step.evaluations for step in result.steps])
     body = animal.body()
     from allorules.laplacian import lumped_mass
 

@@ -99,9 +99,13 @@ def _check_output(result, body, measures):
 
 
 def test_one_step_keeps_stress_and_reaches_mass(bone):
+    from progress_recorder import RecordingProgress
+
     body, measures = bone
-    result = _run(body, measures, 1.1)
+    progress = RecordingProgress()
+    result = _run(body, measures, 1.1, progress=progress)
     assert len(result.steps) == 1 and result.converged
+    progress.check(1, [step.evaluations for step in result.steps])
     assert result.mass_ratio == pytest.approx(1.1, rel=1e-6)
     assert result.stress_ratio == pytest.approx(1.0, rel=1e-6)
     step = result.steps[0]

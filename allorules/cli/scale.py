@@ -172,12 +172,6 @@ def write_report(path: str | None, report: dict) -> None:
     log.info("wrote %s", path)
 
 
-def _progress(description: str):
-    from ..progress import count_bar
-
-    return count_bar(description)
-
-
 def run_global(arguments: argparse.Namespace) -> int:
     from ..body import Body
     from ..global_scaling import ScalingResult, count_flipped_faces, scale_globally, scale_globally_raw
@@ -207,7 +201,9 @@ def run_global(arguments: argparse.Namespace) -> int:
         return 0
 
     body = labelled_body(arguments, prepared)
-    progress = _progress("scaling steps")
+    from ..progress import run_progress
+
+    progress = run_progress("scaling steps")
     try:
         result = scale_globally(body, arguments.mass_ratio, modes=arguments.modes, section=section,
                                 use_cache=not arguments.no_cache, progress=progress)

@@ -140,13 +140,13 @@ def _run_local(arguments, prepared, body, mesh: Path, output: Path) -> int:
 def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
     from ..biology_scaling import scale_with_ruleset
     from ..plugins import registry_for
-    from ..progress import count_bar
+    from ..progress import run_progress
     from ..rules import load_ruleset, override_exponents, parse_rule_overrides
 
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     ruleset = override_exponents(ruleset, parse_rule_overrides(arguments.rule or []), registry)
-    progress = count_bar("scaling steps")
+    progress = run_progress("scaling steps")
     section = None
     if getattr(arguments, "section", None):
         from .scale import _section_choice   # the --section option belongs to the scale command
