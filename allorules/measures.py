@@ -38,10 +38,7 @@ from .sections import (
     submesh,
 )
 
-try:  # the lead's preparation module owns hole capping
-    from .preparation import cap_holes as _cap_holes
-except ImportError:  # pragma: no cover - only while preparation.py has not landed
-    _cap_holes = None
+from .preparation import cap_holes, hole_caps
 
 LIMB_REGIONS = ("forelimbs", "hindlimbs")
 PAIRED_REGIONS = LIMB_REGIONS
@@ -73,43 +70,30 @@ def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return 0.0
-    centred = vertices - vertices[np.unique(faces)].mean(axis=0)
+    centred = vertices - vertices[faces.ravel()].mean(axis=0)     # any centre: the surface is closed
     a, b, c = (centred[faces[:, k]] for k in range(3))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def _fan_caps(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Fallback cap: close each boundary loop with a fan around its centroid."""
-    loops = boundary_loops(vertices, faces)
-    new_vertices = [np.asarray(vertices, dtype=np.float64)]
-    new_faces = [np.asarray(faces, dtype=np.int64)]
-    count = len(vertices)
-    for loop in loops:
-        ids = loop.vertex_ids
-        centre = loop.points.mean(axis=0)
-        following = np.roll(ids, -1)
-        # Orientation: the cap triangle runs each boundary edge opposite to its face's winding.
-        probe = faces[loop.faces[0]]
-        forward = any(probe[k] == ids[0] and probe[(k + 1) % 3] == ids[1] for k in range(3))
-        a, b = (following, ids) if forward else (ids, following)
-        new_faces.append(np.column_stack([a, b, np.full(len(ids), count)]))
-        new_vertices.append(centre[None])
-        count += 1
-    return np.vstack(new_vertices), np.vstack(new_faces)
-
-
 def capped(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mesh with every boundary loop closed by a fan around its centroid (measuring only)."""
-    if _cap_holes is not None:
-        return _cap_holes(vertices, faces)
-    return _fan_caps(vertices, faces)  # pragma: no cover
+    return cap_holes(vertices, faces)
+
+
+def _capped_volume(body: Body, name: str, faces: np.ndarray) -> float:
+    """Volume of ``faces`` capped; the capping plan is topology, kept in the cache under ``name``
+    (and carried to trial meshes by :func:`carry_fields`)."""
+    key = f"measures.caps:{name}"
+    if key not in body.cache:
+        body.cache[key] = hole_caps(faces, len(body.vertices))
+    return enclosed_volume(*body.cache[key].apply(body.vertices))
 
 
 def body_mass(body: Body) -> float:
     """Body mass M (as a volume): enclosed volume of the capped body surface."""
     key = "measures.body_mass"
     if key not in body.cache:
-        volume = enclosed_volume(*capped(body.vertices, body.faces))
+        volume = _capped_volume(body, "body", body.faces)
         if not np.isfinite(volume) or volume <= 0:
             raise MeasurementError(
                 f"volume cannot be determined even after capping: got {volume:.6g}; the surface is "
@@ -123,8 +107,7 @@ def region_mass(body: Body, region: str) -> float:
     """Mass of a region (as a volume): its faces with every open boundary loop capped."""
     key = f"measures.region_mass:{region}"
     if key not in body.cache:
-        faces = body.faces[_region_faces(body, region)]
-        volume = enclosed_volume(*capped(body.vertices, faces))
+        volume = _capped_volume(body, f"region:{region}", body.faces[_region_faces(body, region)])
         if not np.isfinite(volume) or volume <= 0:
             raise MeasurementError(
                 f"volume of region {region!r} cannot be determined even after capping (got "
@@ -239,7 +222,7 @@ def carry_fields(reference: Body, body: Body) -> Body:
                            float(face_areas(body.vertices[part.vertex_index], part.faces).sum()))
                 for part in value
             ]
-        elif key.startswith("measures.fields:"):
+        elif key.startswith(("measures.fields:", "measures.caps:")):   # topology: the same for both
             body.cache[key] = value
         elif key.startswith(("measures.skeleton:", "measures.limbs:", "measures.chest-candidates")):
             body.cache["measures.carried." + key[len("measures."):]] = value

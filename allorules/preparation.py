@@ -372,6 +372,44 @@ def count_boundary_loops(faces: np.ndarray) -> int:
     return int(csgraph.connected_components(graph, directed=False)[0])
 
 
+@dataclass(frozen=True)
+class HoleCaps:
+    """How to close every boundary loop of one face list: a fan of triangles around each loop's
+    centroid. Topology only, so one plan serves every position of the same mesh's vertices (an
+    optimiser measures hundreds of trial meshes with the same faces)."""
+
+    vertex_count: int
+    faces: np.ndarray           # the input faces, then one cap triangle per boundary edge
+    loop_nodes: np.ndarray      # the boundary vertices
+    loop_of_node: np.ndarray    # the loop each of them belongs to
+    loop_count: int
+
+    def apply(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The capped mesh at these vertex positions: vertices with the loop centroids appended."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        if self.loop_count == 0:
+            return vertices, self.faces
+        centroids = np.zeros((self.loop_count, 3))
+        np.add.at(centroids, self.loop_of_node, vertices[self.loop_nodes])
+        centroids /= np.bincount(self.loop_of_node, minlength=self.loop_count)[:, None]
+        return np.vstack([vertices, centroids]), self.faces
+
+
+def hole_caps(faces: np.ndarray, vertex_count: int) -> HoleCaps:
+    """The plan that caps every boundary loop of ``faces`` (see :func:`cap_holes`)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    edges = boundary_edges(faces)
+    if len(edges) == 0:
+        return HoleCaps(vertex_count, faces, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+    nodes, local = np.unique(edges, return_inverse=True)
+    local = local.reshape(-1, 2)
+    graph = sparse.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(nodes),) * 2)
+    loop_count, loop_of_node = csgraph.connected_components(graph, directed=False)
+    centre_index = vertex_count + loop_of_node[local[:, 0]]
+    caps = np.column_stack([edges[:, 1], edges[:, 0], centre_index])
+    return HoleCaps(vertex_count, np.vstack([faces, caps]), nodes, loop_of_node, int(loop_count))
+
+
 def cap_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Close every boundary loop with a fan of triangles around the loop's centroid.
 
@@ -380,20 +418,7 @@ def cap_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
     theorem holds on the result. Returns new arrays; the inputs are not modified.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    edges = boundary_edges(faces)
-    if len(edges) == 0:
-        return vertices, faces
-    nodes, local = np.unique(edges, return_inverse=True)
-    local = local.reshape(-1, 2)
-    graph = sparse.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(nodes),) * 2)
-    loop_count, loop_of_node = csgraph.connected_components(graph, directed=False)
-    centroids = np.zeros((loop_count, 3))
-    np.add.at(centroids, loop_of_node, vertices[nodes])
-    centroids /= np.bincount(loop_of_node, minlength=loop_count)[:, None]
-    centre_index = len(vertices) + loop_of_node[local[:, 0]]
-    caps = np.column_stack([edges[:, 1], edges[:, 0], centre_index])
-    return np.vstack([vertices, centroids]), np.vstack([faces, caps])
+    return hole_caps(faces, len(vertices)).apply(vertices)
 
 
 def _decimate(vertices: np.ndarray, faces: np.ndarray, target_vertices: int) -> tuple[np.ndarray, np.ndarray]:

@@ -128,12 +128,19 @@ def test_cylinder_volume_is_exact_and_does_not_depend_on_position():
 def test_open_cylinder_is_capped_for_volume():
     vertices, faces = revolution(np.linspace(0.0, 4.0, 9), np.full(9, 1.5), around=32)
     assert len(boundary_loops(vertices, faces)) == 2
-    for cap in (capped, measures._fan_caps):
-        closed_vertices, closed_faces = cap(vertices, faces)
-        assert boundary_loops(closed_vertices, closed_faces) == []
-        assert enclosed_volume(closed_vertices, closed_faces) == pytest.approx(prism_volume(1.5, 4.0, 32), rel=1e-12)
+    closed_vertices, closed_faces = capped(vertices, faces)
+    assert boundary_loops(closed_vertices, closed_faces) == []
+    assert enclosed_volume(closed_vertices, closed_faces) == pytest.approx(prism_volume(1.5, 4.0, 32), rel=1e-12)
     # the input arrays are untouched
     assert len(faces) == 2 * 8 * 32
+    # the capping plan is topology: made once, it caps the same mesh moved (a trial mesh) exactly
+    from allorules.preparation import hole_caps
+
+    plan = hole_caps(faces, len(vertices))
+    moved = vertices * np.array([2.0, 0.5, 1.0]) + 7.0
+    np.testing.assert_array_equal(plan.apply(moved)[1], capped(moved, faces)[1])
+    np.testing.assert_allclose(plan.apply(moved)[0], capped(moved, faces)[0], rtol=0, atol=1e-12)
+    assert enclosed_volume(*plan.apply(moved)) == pytest.approx(prism_volume(1.5, 4.0, 32), rel=1e-12)
 
 
 def test_body_mass_of_an_inside_out_body_is_an_error():
