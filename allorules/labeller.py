@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sparse
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .body import UNLABELLED, Body, Frame
 from .errors import SegmentationError
@@ -412,12 +412,42 @@ def _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind) 
     head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, along, np.flatnonzero(labels == FORELIMBS))
     if head_cut is None:
         return
+    tip = rest[np.argmax(along[rest])]
+    pairs = _face_pairs(faces)
     for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
-        beyond = in_rest & ((vertices - point) @ normal > 0)
-        parts = connected_parts(graph, beyond)
-        tip = rest[np.argmax(along[rest])]
-        if beyond[tip]:
-            labels[beyond & (parts == parts[tip])] = region
+        beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, tip)
+        if beyond is None or (along[beyond] < middle).any():
+            continue   # the loop does not cut the front off (or leaks into the body): leave it
+        labels[beyond] = region
+
+
+def _beyond_loop(vertices, faces, graph, pairs, point, normal, allowed, tip):
+    """Vertices on the tip's side of the section loop through ``point`` (⟂ ``normal``).
+
+    Only the loop around ``point`` cuts, not the whole plane: the graph loses the edges that
+    cross the plane inside that loop's faces, and the tip's connected part (within
+    ``allowed``) is returned as a boolean mask, or None if the loop is not found.
+    """
+    section = _section_loop(vertices, faces, pairs, point, normal)
+    if section is None:
+        return None
+    side = (vertices - point) @ normal > 0
+    loop_faces = faces[section[2]]
+    edges = np.concatenate([loop_faces[:, [0, 1]], loop_faces[:, [1, 2]], loop_faces[:, [2, 0]]])
+    edges = edges[side[edges[:, 0]] != side[edges[:, 1]]]
+    cut = sparse.coo_matrix((np.ones(2 * len(edges)), (np.concatenate([edges[:, 0], edges[:, 1]]),
+                                                        np.concatenate([edges[:, 1], edges[:, 0]]))),
+                            shape=graph.shape).tocsr()
+    kept = (graph - graph.multiply(cut > 0)).tocsr()
+    kept.eliminate_zeros()
+    # On the plane's tip side only: where the loop does not close (a hole in the mesh), the cut
+    # is the plane near it; a bulge in front of the plane elsewhere (a horse's breast) is only
+    # reached across the plane, so it stays with the body.
+    allowed = allowed & side
+    if not allowed[tip]:
+        return None
+    parts = connected_parts(kept, allowed)
+    return allowed & (parts == parts[tip])
 
 
 def isocontour_profile(vertices, faces, field, levels):
@@ -449,20 +479,26 @@ def isocontour_profile(vertices, faces, field, levels):
 
 
 PROFILE_LEVELS = 160
-NECK_BASE_RISE = 1.15      # perimeter growth over NECK_RISE_WINDOW that marks the neck's base
-NECK_RISE_WINDOW = 1.0     # in neck radii (valley perimeter / 2π)
-MIN_VALLEY_DEPTH = 0.03    # of the largest perimeter: shallower dips are not a neck
+BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE of the profile
 
 
 def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
-    """(head cut, neck cut) as (point, normal) planes, or (None, None) if no neck is found.
+    """(head cut, neck cut) as (point, normal) planes, normals towards the head tip, or
+    (None, None) if no neck is found.
 
-    Profile P(s) of isocontour perimeters of the geodesic distance s from the head tip, up to
-    where the isocontours reach the forelimbs. The neck is the deepest valley of P (depth =
-    the smaller of the highest P before and after it, minus P there). Head cut: the level of the
-    highest P before the valley (the back of the skull). Neck base: the first level after the
-    valley where P grows by NECK_BASE_RISE within NECK_RISE_WINDOW (the flare into the chest),
-    taken at the start of that window. Each cut is the plane that best fits its isocontour.
+    1. The skeleton of the front part: centroids C(s) of the isocontours of the geodesic
+       distance s from the head tip (the most forward non-leg vertex), up to where the
+       isocontours reach the forelimbs.
+    2. Head/neck: where that skeleton bends most (the head's axis meets the neck's); the turn
+       at s is the angle between the chords C(s) − C(s − w) and C(s + w) − C(s), w a fixed
+       share (1/BEND_SHARE) of the profile. The head cut is the plane through C there,
+       perpendicular to the neck's direction (the chord after the bend).
+    3. Neck base: the neck is followed as a tube from the bend (see the loop below); its section
+       radius r(t) along the way grows slowly (the taper) until the sections enter the chest.
+       The base is the knee of r(t): past the narrowest section, the point of r's running
+       maximum farthest below the chord to its top. The neck cut is the section plane there.
+    Only the section loop around the axis cuts (see :func:`_beyond_loop`), so a bulge of the
+    chest in front of the plane stays chest.
     """
     tip_local = int(np.argmax(along[rest]))
     sub = graph[rest][:, rest]
@@ -475,61 +511,142 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     near_forelimb = near_forelimb[finite[near_forelimb]]
     span = float(distance[near_forelimb].min()) if len(near_forelimb) else float(distance[finite].max())
     levels = np.linspace(0, span, PROFILE_LEVELS + 2)[1:-1]
-    field = np.where(finite, distance, np.inf)
-    perimeter, _ = isocontour_profile(vertices, faces, field, levels)
-    perimeter = np.convolve(perimeter, np.ones(5) / 5, mode="same")
-    top = perimeter.max()
-    if not top > 0:
-        return None, None
-    before = np.maximum.accumulate(perimeter)
-    after = np.maximum.accumulate(perimeter[::-1])[::-1]
-    depth = np.minimum(before, after) - perimeter
-    valley = int(np.argmax(depth))
-    if depth[valley] < MIN_VALLEY_DEPTH * top:
-        return None, None
-    head_level = int(np.argmax(perimeter[:valley + 1]))
     step = levels[1] - levels[0]
-    window = max(1, int(round(NECK_RISE_WINDOW * perimeter[valley] / (2 * np.pi) / step)))
-    base_level = None
-    for sustained in (True, False):  # prefer a flare that keeps growing (the torso, not a bump)
-        for k in range(valley + window, len(levels) - (window if sustained else 0)):
-            rise = perimeter[k] > NECK_BASE_RISE * perimeter[k - window]
-            if rise and (not sustained or perimeter[k + window] > NECK_BASE_RISE * perimeter[k]):
-                base_level = k - window
-                break
-        if base_level is not None:
-            break
-    if base_level is None:
+    field = np.where(finite, distance, np.inf)
+    perimeter, centroids = isocontour_profile(vertices, faces, field, levels)
+    if not perimeter.max() > 0:
         return None, None
-    tip = rest[tip_local]
-    cuts = []
-    for level in (levels[head_level], levels[base_level]):
-        plane = _contour_plane(vertices, faces, field, level, vertices[tip])
-        if plane is None:
-            return None, None
-        cuts.append(plane)
-    return cuts[0], cuts[1]
+    perimeter = _moving_average(perimeter, 5)
+    centroids = _moving_average(centroids, 5)
+    # The bend is measured between chords of a fixed share of the profile: the head and the
+    # neck each span a good part of it, while the muzzle's stop or an ear bends the skeleton
+    # only over a short stretch.
+    w = max(2, len(levels) // BEND_SHARE)
+    turn = np.zeros(len(levels))
+    for k in range(w, len(levels) - w):
+        before = centroids[k] - centroids[k - w]
+        after = centroids[k + w] - centroids[k]
+        norms = np.linalg.norm(before) * np.linalg.norm(after)
+        if norms > 0:
+            turn[k] = np.arccos(np.clip(before @ after / norms, -1.0, 1.0))
+    bend = int(np.argmax(turn))
+    if turn[bend] <= 0:
+        return None, None
+    neck_direction = centroids[bend + w] - centroids[bend]
+    if not np.linalg.norm(neck_direction) > 0:
+        return None, None
+    neck_direction = neck_direction / np.linalg.norm(neck_direction)
+    # The neck base: follow the neck as a tube from the bend towards the body. Each step cuts
+    # the surface with the plane through the current axis point perpendicular to the current
+    # direction, takes the loop around the point (its equivalent radius r and its centre), and
+    # steps on from that centre; the direction is the chord from the first centre to the
+    # current one (beyond two radii), so the axis follows a gently bent neck without turning
+    # into the chest. r changes slowly along the neck (its taper) and fast where the sections
+    # enter the chest.
+    pairs = _face_pairs(faces)
+    direction = neck_direction
+    point = centroids[bend]
+    travelled, radii, centres, directions = [], [], [], []
+    distance_so_far = 0.0
+    for _ in range(4 * PROFILE_LEVELS):
+        section = _section_loop(vertices, faces, pairs, point, direction)
+        if section is None:
+            break
+        area, centre, _ = section
+        r = float(np.sqrt(area / np.pi))
+        travelled.append(distance_so_far)
+        radii.append(r)
+        centres.append(centre)
+        directions.append(direction)
+        if distance_so_far > span:
+            break
+        chord = centre - centres[0]
+        if np.linalg.norm(chord) > 2 * r:
+            direction = chord / np.linalg.norm(chord)
+        point = centre + step * direction
+        distance_so_far += step
+    if len(radii) < 3:
+        return None, None
+    radii, travelled = np.array(radii), np.array(travelled)
+    narrowest = int(np.argmin(radii[:int(np.argmax(radii)) + 1]))   # the neck: before the widest (chest)
+    # Past the narrowest section, r's running maximum (a dip where a plane slips between two
+    # bulges is not the neck again); the knee of that curve up to where it first reaches its
+    # top: the point farthest below the chord from the narrowest to the top (where r's slope
+    # first reaches the chord's; no threshold).
+    grown = np.maximum.accumulate(radii[narrowest:])
+    top = int(np.argmax(grown))
+    if top < 2:
+        return None, None
+    along_track = travelled[narrowest:] - travelled[narrowest]
+    chord = grown[0] + along_track * ((grown[top] - grown[0]) / along_track[top])
+    base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
+    base_point, base_direction = centres[base], directions[base]
+    return (centroids[bend], -neck_direction), (base_point, -base_direction)
 
 
-def _contour_plane(vertices, faces, field, level, towards):
-    """Best-fit plane (point, unit normal towards ``towards``) of the isocontour at ``level``."""
-    values = field[faces]
-    above = values > level
-    crossing = (above.sum(axis=1) == 1) | (above.sum(axis=1) == 2)
-    if crossing.sum() < 3:
+def _face_pairs(faces):
+    """Pairs of faces sharing an edge (rows of two face ids)."""
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges.sort(axis=1)
+    face_of = np.tile(np.arange(len(faces)), 3)
+    key = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
+    order = np.argsort(key, kind="stable")
+    key, face_of = key[order], face_of[order]
+    same = key[1:] == key[:-1]
+    return np.column_stack([face_of[:-1][same], face_of[1:][same]])
+
+
+def _section_loop(vertices, faces, pairs, point, normal):
+    """(area, centre, faces) of the loop of the plane section through ``point`` (⟂ ``normal``)
+    nearest ``point``, or None where the plane misses the surface.
+
+    The faces the plane crosses form one ring per loop (joined through shared edges); the loop
+    whose length-weighted centre is nearest ``point`` is taken. Area = |½ Σ (p_k − o) × (q_k − o) · n|
+    over its oriented segments p_k → q_k (o any point of the plane: ``point``).
+    """
+    side = (vertices - point) @ normal
+    above = side[faces] > 0
+    crossing = above.any(axis=1) & ~above.all(axis=1)
+    crossed = np.flatnonzero(crossing)
+    if len(crossed) < 3:
         return None
-    corners = vertices[faces[crossing]]
-    v = values[crossing]
-    points = []
+    local = np.full(len(faces), -1)
+    local[crossed] = np.arange(len(crossed))
+    joined = pairs[crossing[pairs[:, 0]] & crossing[pairs[:, 1]]]
+    ring = sparse.coo_matrix((np.ones(len(joined)), (local[joined[:, 0]], local[joined[:, 1]])),
+                             shape=(len(crossed), len(crossed)))
+    _, loop_of = connected_components(ring, directed=False)
+    corners, values = vertices[faces[crossed]], side[faces[crossed]]
+    ends = []
     for a, b in ((0, 1), (1, 2), (2, 0)):
-        crosses = (v[:, a] > level) != (v[:, b] > level)
-        t = (level - v[crosses, a]) / (v[crosses, b] - v[crosses, a])
-        points.append(corners[crosses, a] + t[:, None] * (corners[crosses, b] - corners[crosses, a]))
-    points = np.concatenate(points)
-    centre = points.mean(axis=0)
-    normal = np.linalg.svd(points - centre)[2][2]
-    if (towards - centre) @ normal < 0:
-        normal = -normal
-    return centre, normal
+        crosses = (values[:, a] > 0) != (values[:, b] > 0)
+        t = np.where(crosses, values[:, a] / np.where(crosses, values[:, a] - values[:, b], 1.0), np.nan)
+        ends.append(corners[:, a] + (corners[:, b] - corners[:, a]) * t[:, None])
+    ends = np.stack(ends, axis=1)
+    order = np.argsort(~np.isfinite(ends[:, :, 0]), axis=1, kind="stable")[:, :2]
+    pair = ends[np.arange(len(ends))[:, None], order]
+    start, end = pair[:, 0], pair[:, 1]
+    face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    flip = np.einsum("ij,ij->i", end - start, np.cross(normal, face_normal)) < 0
+    start, end = np.where(flip[:, None], end, start), np.where(flip[:, None], start, end)
+    length = np.linalg.norm(end - start, axis=1)
+    middle = 0.5 * (start + end)
+    loops = loop_of.max() + 1
+    weight = np.bincount(loop_of, weights=length, minlength=loops)
+    centre = np.column_stack([np.bincount(loop_of, weights=middle[:, i] * length, minlength=loops)
+                              for i in range(3)]) / np.maximum(weight, 1e-300)[:, None]
+    nearest = int(np.argmin(np.linalg.norm(centre - point, axis=1)))
+    mine = loop_of == nearest
+    area = float(abs(0.5 * np.cross(start[mine] - point, end[mine] - point).sum(axis=0) @ normal))
+    return area, centre[nearest], crossed[mine]
 
 
+def _moving_average(values, width):
+    """Centred moving average along the first axis, the ends padded with the end values."""
+    values = np.asarray(values, dtype=float)
+    pad = width // 2
+    padded = np.concatenate([np.repeat(values[:1], pad, axis=0), values, np.repeat(values[-1:], pad, axis=0)])
+    kernel = np.ones(width) / width
+    if values.ndim == 1:
+        return np.convolve(padded, kernel, mode="valid")
+    return np.column_stack([np.convolve(padded[:, i], kernel, mode="valid") for i in range(values.shape[1])])
