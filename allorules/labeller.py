@@ -12,11 +12,14 @@ The rules (documented with their limits in ``docs/segmentation.md``):
    persistent wins. Up is the plane's normal, towards the body. ``up`` overrides the normal.
 3. **Legs.** Sweeping a plane upwards from the ground, each foot's connected part of the
    surface below the plane grows as a tube until it meets another substantial part (the belly,
-   the other leg of the pair): the leg is cut there, by that horizontal plane.
+   the other leg of the pair): the leg is cut there, by that horizontal plane (the armpit or
+   groin). Two legs that only touch (knees) are not the body: the sweep goes on past them.
 4. **Forward.** The feet pair into fore and hind (the pairing with the shorter in-pair
    distances); the head end of the body axis is the end with more surface beyond its pair of
    feet (head and neck outweigh a tail). ``forward`` overrides the sign (and the axis).
-5. **Head, neck, chest, abdomen.** See :func:`_split_torso`.
+5. **Head, neck, chest, abdomen.** See :func:`_split_torso` and :func:`_neck_cuts`: the head
+   ends where the skeleton of the front part bends, the neck where a tube followed down from
+   there flares into the chest (the knee of its section radius).
 
 Everything is measured in units of the mesh's own size (√area), along its own detected axes,
 so the labels do not change under rotation, mirroring or uniform scaling.
@@ -120,7 +123,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     extremities = find_extremities(vertices, graph, mass)
     feet, up = _find_feet(vertices, mass, extremities, up)
     height = vertices @ up
-    legs = _cut_legs(graph, mass, height, feet)
+    legs = _cut_legs(vertices, faces, graph, mass, height, feet, up)
     fore, hind, forward = _pair_feet(vertices, mass, up, feet, legs, forward)
     labels = np.full(len(vertices), UNLABELLED, dtype=np.int64)
     for foot in fore:
@@ -163,16 +166,8 @@ def persistent_maxima(values: np.ndarray, graph: sparse.csr_matrix) -> tuple[np.
     persistence = {}
     indptr, indices = graph.indptr, graph.indices
 
-    def find(x):
-        root = x
-        while parent[root] != root:
-            root = parent[root]
-        while parent[x] != root:
-            parent[x], x = root, parent[x]
-        return root
-
     for v in order:
-        roots = {find(u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0}
+        roots = {_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0}
         if not roots:
             parent[v] = v
             birth_vertex[v] = v
@@ -184,7 +179,7 @@ def persistent_maxima(values: np.ndarray, graph: sparse.csr_matrix) -> tuple[np.
             tip = birth_vertex[other]
             persistence[tip] = values[tip] - values[v]
             parent[other] = survivor
-    for root in {find(v) for v in range(len(values))}:
+    for root in {_find(parent, v) for v in range(len(values))}:
         tip = birth_vertex[root]
         persistence[tip] = values[tip] - values.min()
     tips = np.array(sorted(persistence, key=lambda t: -persistence[t]), dtype=np.int64)
@@ -291,20 +286,20 @@ def _convex_hull_2d(points):
 
 # ---------------------------------------------------------------- legs
 
-def _cut_legs(graph, mass, height, feet) -> np.ndarray:
+def _cut_legs(vertices, faces, graph, mass, height, feet, up) -> np.ndarray:
     """Per-vertex foot id (−1 off the legs): each foot's part of the surface below its cut plane.
 
     Sweep upwards (sub-level sets of height, union–find). A foot's part stops growing at the
     first height where it meets another substantial part (area ≥ SUBSTANTIAL_PART of the
-    surface, or holding another foot): that height is the leg's horizontal cut.
+    surface, or holding another foot): that height is the leg's horizontal cut. Two legs that
+    only touch (knees, hocks) are not the body: when two feet's parts meet and, just above the
+    meeting, the horizontal section still shows them as two separate loops, the sweep goes on
+    with them together; their shared part is split between the feet by geodesic distance.
     """
     n = len(height)
     order = np.argsort(height, kind="stable")
     parent = np.full(n, -1, dtype=np.int64)
     area = np.zeros(n)
-    foot_of = {}
-    for foot in feet:
-        foot_of[int(foot)] = int(foot)
     holds_foot = np.zeros(n, dtype=bool)
     cut = {int(foot): None for foot in feet}
     substantial = SUBSTANTIAL_PART * mass.sum()
@@ -312,21 +307,20 @@ def _cut_legs(graph, mass, height, feet) -> np.ndarray:
     is_foot = np.zeros(n, dtype=bool)
     is_foot[feet] = True
     members: dict[int, list[int]] = {}
-
-    def find(x):
-        root = x
-        while parent[root] != root:
-            root = parent[root]
-        while parent[x] != root:
-            parent[x], x = root, parent[x]
-        return root
-
+    touching = []   # pairs of feet whose legs touch below their cuts
+    pairs = None
     for v in order:
-        roots = list({find(u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0})
+        roots = list({_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0})
         big = [r for r in roots if holds_foot[r] or area[r] >= substantial]
         foot_roots = [r for r in roots if holds_foot[r]]
         if len(big) >= 2:
-            for r in foot_roots:
+            if len(big) == len(foot_roots) and all(cut[f] is None for r in foot_roots for f in members[r]):
+                if pairs is None:
+                    pairs = _face_pairs(faces)
+                if _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v):
+                    touching.append([f for r in foot_roots for f in members[r]])
+                    big = []
+            for r in foot_roots if big else []:
                 for foot in members[r]:
                     if cut[foot] is None:
                         cut[foot] = height[v]
@@ -347,7 +341,52 @@ def _cut_legs(graph, mass, height, feet) -> np.ndarray:
             raise SegmentationError("a leg could not be separated from the body; the mesh does not look like a standing quadruped")
         parts = connected_parts(graph, height < level)
         legs[(parts == parts[foot]) & (height < level)] = foot
+    for group in touching:   # legs that touch: the shared part goes to the geodesically nearest foot
+        shared = np.isin(legs, group)
+        if not shared.any():
+            continue
+        index = np.flatnonzero(shared)
+        local = {int(v): i for i, v in enumerate(index)}
+        distance = dijkstra(graph[index][:, index], indices=[local[f] for f in group if f in local])
+        legs[index] = np.array([f for f in group if f in local])[np.argmin(distance, axis=0)]
     return legs
+
+
+def _find(parent: np.ndarray, x: int) -> int:
+    """Root of x in a union–find forest stored in ``parent`` (path compression on the way)."""
+    root = x
+    while parent[root] != root:
+        root = parent[root]
+    while parent[x] != root:
+        parent[x], x = root, parent[x]
+    return root
+
+
+def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bool:
+    """Whether the feet's parts meeting at vertex v only touch: in horizontal sections a little
+    (two typical edge heights) and one leg radius above v, the loops nearest each part's top are
+    different loops (legs that go on separately), not one (the body that joins them)."""
+    step = 2 * float(np.median(np.abs(height[faces[:, 0]] - height[faces[:, 1]])))
+    processed = np.flatnonzero(parent >= 0)
+    root_of = np.array([_find(parent, u) for u in processed])
+    tops = []
+    for root in foot_roots:
+        mine = processed[root_of == root]
+        tops.append(vertices[mine[height[mine] >= height[v] - step]].mean(axis=0))
+    rise = step
+    for _ in range(2):
+        loops, radius = set(), 0.0
+        for top in tops:
+            point = top + (height[v] + rise - top @ up) * up
+            section = _section_loop(vertices, faces, pairs, point, up)
+            if section is None:
+                return False
+            loops.add(int(section[2].min()))   # loops are disjoint sets of faces: the smallest names one
+            radius = max(radius, float(np.sqrt(section[0] / np.pi)))
+        if len(loops) < len(tops):
+            return False
+        rise = max(radius, step)
+    return True
 
 
 def _pair_feet(vertices, mass, up, feet, legs, forward):
@@ -392,13 +431,10 @@ def _pair_feet(vertices, mass, up, feet, legs, forward):
 def _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind) -> None:
     """Label the rest (not legs): head, neck, chest, abdomen. Fills ``labels`` in place.
 
-    From the head tip (the most forward non-leg vertex), the geodesic distance s runs down the
-    head and neck into the torso. The perimeter P(s) of its isocontours has a peak in the head,
-    a valley in the neck and grows large in the torso. Head/neck cut: at the valley (the throat);
-    neck/chest cut: where P leaves the neck's trend and rises towards the torso. Both cuts are
-    then made planar, perpendicular to the neck axis (the line through the isocontour centroids
-    between the two levels). Chest/abdomen: the vertical plane half way between the fore and
-    hind feet. The tail (behind the hind legs) stays with the abdomen.
+    Head and neck: the section loops of :func:`_neck_cuts` cut them off the front (each the part
+    connected to the head tip beyond its loop, see :func:`_beyond_loop`). Chest/abdomen: the
+    vertical plane half way between the fore and hind feet. The tail (behind the hind legs)
+    stays with the abdomen.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
     along = vertices @ forward
@@ -480,6 +516,7 @@ def isocontour_profile(vertices, faces, field, levels):
 
 PROFILE_LEVELS = 160
 BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE of the profile
+MIN_NECK_LENGTH = 1.5      # a neck runs at least this many of its radii from the bend to its base
 
 
 def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
@@ -529,23 +566,53 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
         norms = np.linalg.norm(before) * np.linalg.norm(after)
         if norms > 0:
             turn[k] = np.arccos(np.clip(before @ after / norms, -1.0, 1.0))
-    bend = int(np.argmax(turn))
-    if turn[bend] <= 0:
-        return None, None
-    neck_direction = centroids[bend + w] - centroids[bend]
-    if not np.linalg.norm(neck_direction) > 0:
-        return None, None
-    neck_direction = neck_direction / np.linalg.norm(neck_direction)
-    # The neck base: follow the neck as a tube from the bend towards the body. Each step cuts
-    # the surface with the plane through the current axis point perpendicular to the current
-    # direction, takes the loop around the point (its equivalent radius r and its centre), and
-    # steps on from that centre; the direction is the chord from the first centre to the
-    # current one (beyond two radii), so the axis follows a gently bent neck without turning
-    # into the chest. r changes slowly along the neck (its taper) and fast where the sections
-    # enter the chest.
+    # Candidate bends: the local maxima of the turn at least half as sharp as the sharpest, the
+    # sharpest first. The head/neck bend is followed by a neck: the first candidate whose tube
+    # (see _follow_neck) runs at least MIN_NECK_LENGTH of its radii before flaring into the
+    # chest wins (a camel's S-shaped neck bends sharply again where it enters the chest); if
+    # none does, the sharpest bend with a tube at all.
+    peaks = [k for k in range(1, len(levels) - 1)
+             if turn[k] >= turn[k - 1] and turn[k] > turn[k + 1] and turn[k] >= 0.5 * turn.max()]
+    peaks.sort(key=lambda k: -turn[k])
     pairs = _face_pairs(faces)
-    direction = neck_direction
-    point = centroids[bend]
+    found = []
+    for bend in peaks:
+        neck_direction = centroids[bend + w] - centroids[bend]
+        if not np.linalg.norm(neck_direction) > 0:
+            continue
+        neck_direction = neck_direction / np.linalg.norm(neck_direction)
+        neck = _follow_neck(vertices, faces, pairs, centroids[bend], neck_direction, step, span)
+        if neck is None:
+            continue
+        found.append((bend, neck_direction, neck))
+        if neck[2] >= MIN_NECK_LENGTH:
+            break
+    if not found:
+        return None, None
+    bend, neck_direction, (base_point, base_direction, length) = next(
+        (candidate for candidate in found if candidate[2][2] >= MIN_NECK_LENGTH), found[0])
+    # The head cut: across the neck's axis as the tube-following found it (the chord from the
+    # bend to the base), not the first chord after the bend, which still leans into the head.
+    axis = base_point - centroids[bend]
+    if np.linalg.norm(axis) > 0:
+        neck_direction = axis / np.linalg.norm(axis)
+    return (centroids[bend], -neck_direction), (base_point, -base_direction)
+
+
+def _follow_neck(vertices, faces, pairs, start, direction, step, span):
+    """Follow a tube from ``start`` along ``direction``: (base point, base direction, length in
+    radii) of the neck it finds, or None.
+
+    Each step cuts the surface with the plane through the current axis point perpendicular to
+    the current direction, takes the loop around the point (its equivalent radius r and its
+    centre), and steps on from that centre; the direction is the chord from the first centre to
+    the current one (beyond two radii), so the axis follows a gently bent neck without turning
+    into the chest. r changes slowly along the neck (its taper) and fast where the sections
+    enter the chest: the base is the knee of r(t), past the narrowest section, of r's running
+    maximum: the point farthest below the chord to its top (no threshold). The length is the
+    distance travelled from ``start`` to the base over the narrowest radius.
+    """
+    point = start
     travelled, radii, centres, directions = [], [], [], []
     distance_so_far = 0.0
     for _ in range(4 * PROFILE_LEVELS):
@@ -566,22 +633,21 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
         point = centre + step * direction
         distance_so_far += step
     if len(radii) < 3:
-        return None, None
+        return None
     radii, travelled = np.array(radii), np.array(travelled)
     narrowest = int(np.argmin(radii[:int(np.argmax(radii)) + 1]))   # the neck: before the widest (chest)
     # Past the narrowest section, r's running maximum (a dip where a plane slips between two
-    # bulges is not the neck again); the knee of that curve up to where it first reaches its
-    # top: the point farthest below the chord from the narrowest to the top (where r's slope
-    # first reaches the chord's; no threshold).
+    # bulges is not the neck again); its knee up to where it first reaches its top.
     grown = np.maximum.accumulate(radii[narrowest:])
     top = int(np.argmax(grown))
     if top < 2:
-        return None, None
+        return None
     along_track = travelled[narrowest:] - travelled[narrowest]
     chord = grown[0] + along_track * ((grown[top] - grown[0]) / along_track[top])
     base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
-    base_point, base_direction = centres[base], directions[base]
-    return (centroids[bend], -neck_direction), (base_point, -base_direction)
+    if radii[narrowest] <= 0:
+        return None
+    return centres[base], directions[base], travelled[base] / radii[narrowest]
 
 
 def _face_pairs(faces):

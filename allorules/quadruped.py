@@ -22,16 +22,17 @@ have no Z component); a point's region is the first that claims it, in this orde
 - head:      beyond the plane through the neck's head end, perpendicular to the neck axis;
 - neck:      beyond the tangent plane of the chest where the neck leaves it (perpendicular to the
              neck axis; the chest lies wholly behind it);
-- forelimbs: below y = y_fore and in front of x = x_fore_back (just behind the forelegs);
-- hindlimbs: below y = y_hind and behind x = x_hind_front (just in front of the hind legs);
+- forelimbs: below y = y_fore and in front of x = x_fore_back (just behind the forelegs), within
+             the leg's reach of its axis and connected to its foot (:func:`free_legs`);
+- hindlimbs: below y = y_hind and behind x = x_hind_front (just in front of the hind legs), likewise;
 - chest:     in front of the vertical plane x = x_split (half way between chest and abdomen centres);
 - abdomen:   the rest.
 
-Each leg cut y_fore / y_hind lies below the lowest point of the torso in its part of the body and
-below the leg/torso fillet, so a leg region is a clean tapered limb and its cross-sections are
-the capsule's own circles. Truth is measured on the polygonised mesh itself (see
-:class:`QuadrupedTruth`); region volumes are exact volumes of the mesh's solid inside each
-region's cells.
+Each leg cut y_fore / y_hind is the leg's saddle (armpit / groin) on the implicit solid: the
+highest horizontal plane below which the leg is its own piece (:func:`leg_saddle_height`), where
+the segmentation says a leg starts (docs/segmentation.md). Truth is measured on the polygonised
+mesh itself (see :class:`QuadrupedTruth`); region volumes are exact volumes of the mesh's solid
+inside each region.
 """
 from __future__ import annotations
 
@@ -295,6 +296,7 @@ class _Layout:
     cells: dict[str, tuple[tuple[HalfSpace, ...], ...]]   # region -> disjoint convex cells
     leg_axes: dict[str, tuple[np.ndarray, ...]]           # region -> (x, z) of each leg axis
     leg_cut_height: dict[str, float]
+    leg_reach: dict[str, float]                           # horizontal reach of a leg below its cut
     leg_cell_bound: dict[str, float]                      # x_fore_back, x_hind_front
     split_x: float
     thinnest_radius: float
@@ -340,18 +342,55 @@ def _cone_primitive(name, start, end, start_radius, end_radius, blend) -> _Primi
                       np.minimum(start, end) - r, np.maximum(start, end) + r, blend)
 
 
-def _lowest_surface(distance: Callable[[np.ndarray], np.ndarray], xz: np.ndarray,
-                    top: float, bottom: float) -> np.ndarray:
-    """Lowest y at each (x, z) where ``distance`` ≤ 0, searching down from ``top`` (inside)."""
-    inside = np.full(len(xz), top)
-    outside = np.full(len(xz), bottom)
-    for _ in range(60):
-        middle = 0.5 * (inside + outside)
-        points = np.column_stack([xz[:, 0], middle, xz[:, 1]])
-        is_inside = distance(points) <= 0
-        inside = np.where(is_inside, middle, inside)
-        outside = np.where(is_inside, outside, middle)
-    return inside
+SADDLE_GRID = 8       # grid points per top leg radius in the slices that find a leg's saddle
+
+
+def leg_saddle_height(solid: Callable[[np.ndarray], np.ndarray], torso: Callable[[np.ndarray], np.ndarray],
+                      x_leg: float, z_leg: float, radius: float, top: float, box) -> tuple[float, float]:
+    """Height of a leg's saddle (armpit or groin): the lowest horizontal slice of the solid in
+    which the leg's own piece (the slice's connected part around the leg axis at (x_leg, z_leg))
+    reaches the torso (a point inside the torso's own ellipsoids), the other leg of the pair
+    (at (x_leg, −z_leg)) or the edge of ``box`` = (x_min, x_max, |z|_max), which lies several leg
+    radii away. Below it the leg hangs free: every slice of it is its own piece.
+
+    Bisection on the height, each slice sampled on a grid of spacing radius / SADDLE_GRID;
+    accurate to about that spacing times the slope of the fillet. Returns (height, reach): the
+    largest horizontal distance from the leg axis of the leg's piece just below the saddle (plus
+    one grid spacing), which separates the leg from belly hanging lower than the saddle.
+    """
+    from scipy import ndimage
+
+    spacing = radius / SADDLE_GRID
+    xs = np.arange(box[0], box[1] + spacing, spacing)
+    zs = np.arange(-box[2], box[2] + spacing, spacing)
+    gx, gz = np.meshgrid(xs, zs, indexing="ij")
+    leg = (int(np.argmin(np.abs(xs - x_leg))), int(np.argmin(np.abs(zs - z_leg))))
+    other = (leg[0], int(np.argmin(np.abs(zs + z_leg))))
+
+    def leg_piece(y: float):
+        """The leg's piece of the slice at height y and whether it is joined to something."""
+        points = np.column_stack([gx.ravel(), np.full(gx.size, y), gz.ravel()])
+        inside = (solid(points) <= 0).reshape(gx.shape)
+        parts, _ = ndimage.label(inside)
+        mine = parts[leg]
+        if mine == 0:
+            return None, False
+        piece = parts == mine
+        edge = piece[0].any() or piece[-1].any() or piece[:, 0].any() or piece[:, -1].any()
+        return piece, bool(edge or piece[other] or (piece & (torso(points) <= 0).reshape(gx.shape)).any())
+
+    low, high = radius, top
+    if leg_piece(low)[1] or not leg_piece(high)[1]:
+        raise QuadrupedParameterError("a leg does not hang free below the body: check the leg and torso sizes")
+    while high - low > 1e-3 * radius:
+        middle = 0.5 * (low + high)
+        if leg_piece(middle)[1]:
+            high = middle
+        else:
+            low = middle
+    piece, _ = leg_piece(low)
+    reach = float(np.hypot(gx[piece] - x_leg, gz[piece] - z_leg).max()) + spacing
+    return float(low), reach
 
 
 def _layout(p: QuadrupedParameters) -> _Layout:
@@ -451,7 +490,7 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     if tail_tip[1] - 0.55 * p.tail_radius <= 0.05 * p.hindleg_length:
         raise QuadrupedParameterError("the tail reaches the ground: shorten it or lower tail_angle")
 
-    # Leg cuts: below the lowest torso point in the leg cell and below the leg/torso fillet.
+    # Leg cells: in front of / behind the legs and their fillets.
     fore_back = x_fore - (p.foreleg_radius_top + 2.5 * k_limb)
     hind_front = x_hind + (p.hindleg_radius_top + 2.5 * k_limb)
     split_x = 0.5 * (x_chest + x_abdomen)
@@ -460,15 +499,25 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     if x_hind - p.hindleg_radius_top - 2.5 * k_limb <= x_tail:
         raise QuadrupedParameterError("hind legs stand behind the rump: reduce hindleg_offset")
 
-    def cut_height(x_from, x_to, x_leg, top):
-        xs = np.linspace(x_from, x_to, 48)
-        xz = np.array([(x, z) for x in xs for z in (0.0, z_leg)])
-        lowest = _lowest_surface(torso_distance, xz, top, -1.0 * top)
-        at_leg = _lowest_surface(torso_distance, np.array([[x_leg, z_leg]]), top, -1.0 * top)[0]
-        return float(min(lowest.min(), at_leg - 1.2 * k_limb) - 0.25 * k_limb)
+    # Leg cuts: at the leg's saddle (armpit / groin), docs/segmentation.md "Where a leg starts".
+    field_so_far = tuple(primitives)
 
-    y_fore = cut_height(fore_back, x_chest + 0.98 * chest_semi[0], x_fore, y_chest)
-    y_hind = cut_height(x_abdomen - 0.98 * abdomen_semi[0], hind_front, x_hind, y_abdomen)
+    def solid(points):
+        value = None
+        for primitive in field_so_far:
+            d = primitive.distance(points)
+            value = d if value is None else smooth_union(value, d, primitive.blend)
+        return value
+
+    width = max(chest_semi[2], abdomen_semi[2]) + k_torso
+
+    def saddle(x_leg, radius, top):
+        reach = 4 * radius + 2 * k_limb
+        return leg_saddle_height(solid, torso_distance, x_leg, z_leg, radius, top,
+                                 (x_leg - reach, x_leg + reach, width))
+
+    y_fore, fore_reach = saddle(x_fore, p.foreleg_radius_top, y_chest)
+    y_hind, hind_reach = saddle(x_hind, p.hindleg_radius_top, y_abdomen)
     if y_fore < 0.4 * p.foreleg_length or y_hind < 0.4 * p.hindleg_length:
         raise QuadrupedParameterError("the belly hangs too low between the legs: shorten the torso heights")
 
@@ -504,7 +553,7 @@ def _layout(p: QuadrupedParameters) -> _Layout:
                     (_below(x_axis, [x_tail, 0, 0]), _below(t, tail_cut))),   # the tail's root
     }
     return _Layout(p, tuple(primitives), cuts, cells, legs,
-                   {"forelimbs": y_fore, "hindlimbs": y_hind},
+                   {"forelimbs": y_fore, "hindlimbs": y_hind}, {"forelimbs": fore_reach, "hindlimbs": hind_reach},
                    {"forelimbs": fore_back, "hindlimbs": hind_front}, split_x, thinnest)
 
 
@@ -752,9 +801,9 @@ class QuadrupedTruth:
             raise ValueError(f"fraction must be in [{LEG_BAND}, {1 - LEG_BAND}]: 0 is the cut, 1 the foot tip")
         cut = self.leg_cut_height[region]
         return float(np.mean([
-            _leg_band_radius(self._vertices, self._faces, cell, cut - (fraction + LEG_BAND) * length,
+            _leg_band_radius(self._vertices, leg_faces, cut - (fraction + LEG_BAND) * length,
                              cut - (fraction - LEG_BAND) * length)
-            for cell, length in zip(self._leg_cells[region], self._leg_lengths[region])]))
+            for leg_faces, length in zip(self._leg_cells[region], self._leg_lengths[region])]))
 
     def as_dict(self) -> dict:
         """JSON-ready summary (what ``allorules generate --truth`` writes)."""
@@ -772,11 +821,84 @@ class QuadrupedTruth:
         }
 
 
-def _leg_band_radius(vertices, faces, cell, low, high) -> float:
+def volume_below(vertices: np.ndarray, faces: np.ndarray, height: float) -> float:
+    """Exact volume of the solid below y = ``height`` bounded by ``faces``: a piece of a closed
+    surface that, clipped at that height, is closed by its planar cap there (one leg).
+
+    Divergence theorem with F = (0, y − height, 0): the cap lies in y = height, where F = 0, so
+    only the clipped surface is integrated; per triangle ∫ (y − height) n_y dA =
+    (ȳ − height) · ½((b − a) × (c − a))_y.
+    """
+    triangles = _clip_triangles(vertices[faces], HalfSpace(np.array([0.0, 1.0, 0.0]), height))
+    if len(triangles) == 0:
+        return 0.0
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    area_y = 0.5 * np.cross(b - a, c - a)[:, 1]
+    return float(np.sum(((a[:, 1] + b[:, 1] + c[:, 1]) / 3.0 - height) * area_y))
+
+
+def _leg_band_radius(vertices, leg_faces, low, high) -> float:
     """√(A/π) with A the mean horizontal section area of one leg between heights low and high."""
-    y_axis = np.array([0.0, 1.0, 0.0])
-    volume = clipped_volume(vertices, faces, cell + (HalfSpace(y_axis, high), HalfSpace(-y_axis, -low)))
+    volume = volume_below(vertices, leg_faces, high) - volume_below(vertices, leg_faces, low)
     return math.sqrt(max(volume, 0.0) / (high - low) / math.pi)
+
+
+def _feet(vertices: np.ndarray, layout: "_Layout", region: str) -> list[int]:
+    """The lowest vertex of each leg of ``region``: among the vertices nearer (in x, z) to that
+    leg's axis than to any other leg's."""
+    axes = np.array([axis for name in LIMB_REGIONS for axis in layout.leg_axes[name]])
+    nearest = np.argmin(np.hypot(vertices[:, [0]] - axes[:, 0], vertices[:, [2]] - axes[:, 1]), axis=1)
+    feet = []
+    for axis in layout.leg_axes[region]:
+        index = int(np.flatnonzero((axes == axis).all(axis=1))[0])
+        mine = np.flatnonzero(nearest == index)
+        feet.append(int(mine[np.argmin(vertices[mine, 1])]))
+    return feet
+
+
+def _find(parent: np.ndarray, x: int) -> int:
+    """Root of x in a union–find forest (with path compression)."""
+    root = x
+    while parent[root] != root:
+        root = parent[root]
+    while parent[x] != root:
+        parent[x], x = root, parent[x]
+    return root
+
+
+def free_legs(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, layout: "_Layout") -> list:
+    """Keep as leg only each foot's own piece below its cut; return the faces of each leg.
+
+    The leg cells (below the saddle height, on the leg's side of the body) also hold pieces of
+    belly hanging lower than the saddle between or behind the legs. A leg is the part of its
+    cell within the leg's reach of its axis (see :func:`leg_saddle_height`) connected to its
+    foot; the rest goes to the chest (forelimb cells) or the abdomen (hindlimb cells). (At the
+    saddle the leg and the belly touch, so the polygon mesh may join them just below it: the
+    reach, not the mesh's connectivity, separates them.) ``labels`` is changed in place.
+    Returns [(region, faces of one leg), ...].
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    adjacency = _vertex_adjacency(faces, len(vertices))
+    pieces = []
+    for region, rest in (("forelimbs", "chest"), ("hindlimbs", "abdomen")):
+        index = REGION_NAMES.index(region)
+        reach = np.min([np.hypot(vertices[:, 0] - axis[0], vertices[:, 2] - axis[1])
+                        for axis in layout.leg_axes[region]], axis=0) <= layout.leg_reach[region]
+        members = np.flatnonzero((labels == index) & reach)
+        _, part = connected_components(adjacency[members][:, members], directed=False)
+        kept = np.zeros(len(vertices), dtype=bool)
+        position = np.full(len(vertices), -1)
+        position[members] = np.arange(len(members))
+        for foot in _feet(vertices, layout, region):
+            mine = members[part == part[position[foot]]]
+            if kept[mine].any():
+                raise QuadrupedParameterError("two legs touch below their cut: move the legs apart")
+            kept[mine] = True
+            leg_faces = np.flatnonzero(np.isin(faces, mine).any(axis=1))
+            pieces.append((region, faces[leg_faces]))
+        labels[(labels == index) & ~kept] = REGION_NAMES.index(rest)
+    return pieces
 
 
 def _torso_section(vertices, faces, x) -> tuple[float, float]:
@@ -787,27 +909,28 @@ def _torso_section(vertices, faces, x) -> tuple[float, float]:
 
 
 def _measure_truth(layout: _Layout, vertices: np.ndarray, faces: np.ndarray,
-                   labels: np.ndarray) -> QuadrupedTruth:
+                   labels: np.ndarray, legs: list) -> QuadrupedTruth:
     p = layout.parameters
     leg_length, leg_radius, leg_cells, lengths = {}, {}, {}, {}
     for region in LIMB_REGIONS:
-        in_region = labels == REGION_NAMES.index(region)
         cut = layout.leg_cut_height[region]
-        region_cell = layout.cells[region][0]
-        per_leg, cells = [], []
-        for axis in layout.leg_axes[region]:
-            side = 1.0 if axis[1] > 0 else -1.0      # this leg's side of the plane z = 0
-            mine = in_region & (side * vertices[:, 2] > 0)
-            per_leg.append(cut - float(vertices[mine, 1].min()))
-            cells.append(region_cell + (HalfSpace(np.array([0.0, 0.0, -side]), 0.0),))
+        cells = [leg_faces for name, leg_faces in legs if name == region]
+        per_leg = [cut - float(vertices[np.unique(leg_faces), 1].min()) for leg_faces in cells]
         leg_cells[region], lengths[region] = cells, per_leg
         leg_length[region] = float(np.mean(per_leg))
         leg_radius[region] = float(np.mean([
-            _leg_band_radius(vertices, faces, cell, cut - (0.5 + LEG_BAND) * length, cut - (0.5 - LEG_BAND) * length)
-            for cell, length in zip(cells, per_leg)]))
+            _leg_band_radius(vertices, leg_faces, cut - (0.5 + LEG_BAND) * length, cut - (0.5 - LEG_BAND) * length)
+            for leg_faces, length in zip(cells, per_leg)]))
 
     region_volume = {region: sum(clipped_volume(vertices, faces, cell) for cell in layout.cells[region])
                      for region in REGION_NAMES}
+    # The legs are each foot's own piece below the cut (free_legs); what else their cells hold
+    # (belly hanging lower than the saddle) belongs to the chest or abdomen.
+    for region, rest in (("forelimbs", "chest"), ("hindlimbs", "abdomen")):
+        legs_volume = sum(volume_below(vertices, leg_faces, layout.leg_cut_height[region])
+                          for leg_faces in leg_cells[region])
+        region_volume[rest] += region_volume[region] - legs_volume
+        region_volume[region] = legs_volume
     body_volume = float(trimesh.Trimesh(vertices, faces, process=False).volume)
 
     # chest girth: largest perimeter of X-normal sections between the split and the forelimbs
@@ -915,7 +1038,8 @@ def generate_quadruped(preset: str = "horse", vertices: int = 8000, *, seed: int
             f"these parameters make no closed one-piece surface ({problem}); thicken the thinnest part")
 
     labels = label_points(layout, mesh_vertices)
-    truth = _measure_truth(layout, mesh_vertices, mesh_faces, labels)
+    legs = free_legs(mesh_vertices, mesh_faces, labels, layout)
+    truth = _measure_truth(layout, mesh_vertices, mesh_faces, labels, legs)
     return GeneratedQuadruped(mesh_vertices, mesh_faces, labels, parameters, truth, preset)
 
 
