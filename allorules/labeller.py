@@ -516,7 +516,7 @@ def isocontour_profile(vertices, faces, field, levels):
 
 PROFILE_LEVELS = 160
 BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE of the profile
-MIN_NECK_LENGTH = 1.5      # a neck runs at least this many of its radii from the bend to its base
+MIN_NECK_LENGTH = 1.0      # a neck runs at least one of its radii from the bend to its base
 
 
 def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
@@ -567,10 +567,11 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
         if norms > 0:
             turn[k] = np.arccos(np.clip(before @ after / norms, -1.0, 1.0))
     # Candidate bends: the local maxima of the turn at least half as sharp as the sharpest, the
-    # sharpest first. The head/neck bend is followed by a neck: the first candidate whose tube
-    # (see _follow_neck) runs at least MIN_NECK_LENGTH of its radii before flaring into the
-    # chest wins (a camel's S-shaped neck bends sharply again where it enters the chest); if
-    # none does, the sharpest bend with a tube at all.
+    # sharpest first. The head/neck bend is followed by a neck (see _follow_neck): the sections
+    # first narrow (from the back of the head into the neck) and the tube then runs at least
+    # MIN_NECK_LENGTH of its radii before flaring into the chest. The first candidate that
+    # shows both wins (a camel's S-shaped neck bends sharply again where it enters the chest,
+    # and from there the sections only grow); if none does, the sharpest bend with a tube.
     peaks = [k for k in range(1, len(levels) - 1)
              if turn[k] >= turn[k - 1] and turn[k] > turn[k + 1] and turn[k] >= 0.5 * turn.max()]
     peaks.sort(key=lambda k: -turn[k])
@@ -585,12 +586,12 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
-        if neck[2] >= MIN_NECK_LENGTH:
+        if neck[3] > 0 and neck[2] >= MIN_NECK_LENGTH:
             break
     if not found:
         return None, None
-    bend, neck_direction, (base_point, base_direction, length) = next(
-        (candidate for candidate in found if candidate[2][2] >= MIN_NECK_LENGTH), found[0])
+    bend, neck_direction, (base_point, base_direction, _, _) = next(
+        (candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH), found[0])
     # The head cut: across the neck's axis as the tube-following found it (the chord from the
     # bend to the base), not the first chord after the bend, which still leans into the head.
     axis = base_point - centroids[bend]
@@ -600,8 +601,9 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
 
 
 def _follow_neck(vertices, faces, pairs, start, direction, step, span):
-    """Follow a tube from ``start`` along ``direction``: (base point, base direction, length in
-    radii) of the neck it finds, or None.
+    """Follow a tube from ``start`` along ``direction``: (base point, base direction, length,
+    narrowing) of the neck it finds, or None; length and narrowing (the distance to the
+    narrowest section) in radii of the narrowest section.
 
     Each step cuts the surface with the plane through the current axis point perpendicular to
     the current direction, takes the loop around the point (its equivalent radius r and its
@@ -609,8 +611,7 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
     the current one (beyond two radii), so the axis follows a gently bent neck without turning
     into the chest. r changes slowly along the neck (its taper) and fast where the sections
     enter the chest: the base is the knee of r(t), past the narrowest section, of r's running
-    maximum: the point farthest below the chord to its top (no threshold). The length is the
-    distance travelled from ``start`` to the base over the narrowest radius.
+    maximum: the point farthest below the chord to its top (no threshold).
     """
     point = start
     travelled, radii, centres, directions = [], [], [], []
@@ -647,7 +648,7 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
     base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
     if radii[narrowest] <= 0:
         return None
-    return centres[base], directions[base], travelled[base] / radii[narrowest]
+    return centres[base], directions[base], travelled[base] / radii[narrowest], travelled[narrowest] / radii[narrowest]
 
 
 def _face_pairs(faces):
