@@ -372,7 +372,8 @@ def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bo
     tops = []
     for root in foot_roots:
         mine = processed[root_of == root]
-        tops.append(vertices[mine[height[mine] >= height[v] - step]].mean(axis=0))
+        band = mine[height[mine] >= min(height[v] - step, height[mine].max())]   # never empty
+        tops.append(vertices[band].mean(axis=0))
     rise = step
     for _ in range(2):
         loops, radius = set(), 0.0
