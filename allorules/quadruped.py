@@ -856,16 +856,6 @@ def _feet(vertices: np.ndarray, layout: "_Layout", region: str) -> list[int]:
     return feet
 
 
-def _find(parent: np.ndarray, x: int) -> int:
-    """Root of x in a union–find forest (with path compression)."""
-    root = x
-    while parent[root] != root:
-        root = parent[root]
-    while parent[x] != root:
-        parent[x], x = root, parent[x]
-    return root
-
-
 def free_legs(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, layout: "_Layout") -> list:
     """Keep as leg only each foot's own piece below its cut; return the faces of each leg.
 
@@ -877,8 +867,6 @@ def free_legs(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, layou
     reach, not the mesh's connectivity, separates them.) ``labels`` is changed in place.
     Returns [(region, faces of one leg), ...].
     """
-    from scipy.sparse.csgraph import connected_components
-
     adjacency = _vertex_adjacency(faces, len(vertices))
     pieces = []
     for region, rest in (("forelimbs", "chest"), ("hindlimbs", "abdomen")):
@@ -886,11 +874,13 @@ def free_legs(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, layou
         reach = np.min([np.hypot(vertices[:, 0] - axis[0], vertices[:, 2] - axis[1])
                         for axis in layout.leg_axes[region]], axis=0) <= layout.leg_reach[region]
         members = np.flatnonzero((labels == index) & reach)
-        _, part = connected_components(adjacency[members][:, members], directed=False)
+        _, part = sparse.csgraph.connected_components(adjacency[members][:, members], directed=False)
         kept = np.zeros(len(vertices), dtype=bool)
         position = np.full(len(vertices), -1)
         position[members] = np.arange(len(members))
         for foot in _feet(vertices, layout, region):
+            if position[foot] < 0:
+                raise QuadrupedParameterError(f"a foot of the {region} lies outside its leg: check the leg sizes")
             mine = members[part == part[position[foot]]]
             if kept[mine].any():
                 raise QuadrupedParameterError("two legs touch below their cut: move the legs apart")
