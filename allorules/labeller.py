@@ -527,16 +527,16 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     1. The skeleton of the front part: centroids C(s) of the isocontours of the geodesic
        distance s from the head tip (the most forward non-leg vertex), up to where the
        isocontours reach the forelimbs.
-    2. Head/neck: where that skeleton bends most (the head's axis meets the neck's); the turn
-       at s is the angle between the chords C(s) − C(s − w) and C(s + w) − C(s), w a fixed
-       share (1/BEND_SHARE) of the profile. The head cut is the plane through C there,
-       perpendicular to the neck's direction (the chord after the bend).
-    3. Neck base: the neck is followed as a tube from the bend (see the loop below); its section
-       radius r(t) along the way grows slowly (the taper) until the sections enter the chest.
-       The base is the knee of r(t): past the narrowest section, the point of r's running
-       maximum farthest below the chord to its top. The neck cut is the section plane there.
-    Only the section loop around the axis cuts (see :func:`_beyond_loop`), so a bulge of the
-    chest in front of the plane stays chest.
+    2. Head/neck: where that skeleton bends (the head's axis meets the neck's); the turn at s
+       is the angle between the chords C(s) − C(s − w) and C(s + w) − C(s), w a fixed share
+       (1/BEND_SHARE) of the profile; candidates are checked for a neck behind them.
+    3. Neck base: the neck is followed as a tube from the bend (:func:`_follow_neck`); its
+       section radius r(t) grows slowly (the taper) until the sections enter the chest. The
+       base is the knee of r(t). The neck cut is the tube's section there.
+    4. The head cut is the tube's section at the throat: its narrowest section when that lies
+       in the head's half of the neck (the throatlatch), else at the bend.
+    Only the section loops cut (see :func:`_beyond_loop`), so a bulge of the chest in front of
+    a plane stays chest.
     """
     tip_local = int(np.argmax(along[rest]))
     sub = graph[rest][:, rest]
@@ -591,14 +591,15 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
             break
     if not found:
         return None, None
-    bend, neck_direction, (base_point, base_direction, _, _) = next(
+    bend, neck_direction, (base_point, base_direction, _, _, throat) = next(
         (candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH), found[0])
-    # The head cut: across the neck's axis as the tube-following found it (the chord from the
-    # bend to the base), not the first chord after the bend, which still leans into the head.
+    # The head cut: at the throat (the neck's narrowest section in its head half, else the bend;
+    # see _follow_neck), across the neck's axis as the tube-following found it (the chord from
+    # the bend to the base), not the first chord after the bend, which still leans into the head.
     axis = base_point - centroids[bend]
     if np.linalg.norm(axis) > 0:
         neck_direction = axis / np.linalg.norm(axis)
-    return (centroids[bend], -neck_direction), (base_point, -base_direction)
+    return (throat, -neck_direction), (base_point, -base_direction)
 
 
 def _follow_neck(vertices, faces, pairs, start, direction, step, span):
@@ -649,7 +650,12 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
     base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
     if radii[narrowest] <= 0:
         return None
-    return centres[base], directions[base], travelled[base] / radii[narrowest], travelled[narrowest] / radii[narrowest]
+    # The throat: the narrowest section, when it lies in the head's half of the neck (a neck
+    # narrowest just before the chest, like a lion's under its mane, has no throat: the bend
+    # itself is then the head's end).
+    throat = centres[narrowest] if 2 * travelled[narrowest] <= travelled[base] else centres[0]
+    return (centres[base], directions[base], travelled[base] / radii[narrowest],
+            travelled[narrowest] / radii[narrowest], throat)
 
 
 def _face_pairs(faces):
