@@ -17,9 +17,10 @@ The rules (documented with their limits in ``docs/segmentation.md``):
 4. **Forward.** The feet pair into fore and hind (the pairing with the shorter in-pair
    distances); the head end of the body axis is the end with more surface beyond its pair of
    feet (head and neck outweigh a tail). ``forward`` overrides the sign (and the axis).
-5. **Head, neck, chest, abdomen.** See :func:`_split_torso` and :func:`_neck_cuts`: the head
-   ends where the skeleton of the front part bends, the neck where a tube followed down from
-   there flares into the chest (the knee of its section radius).
+5. **Head, neck, chest, abdomen.** See :func:`_split_torso` and :func:`_neck_cuts`: from where
+   the skeleton of the front part bends, the neck is followed down as a tube; the head ends at
+   its throat (its narrowest section, in the head's half of the neck) and the neck where the
+   tube flares into the chest (the knee of its section radius).
 
 Everything is measured in units of the mesh's own size (√area), along its own detected axes,
 so the labels do not change under rotation, mirroring or uniform scaling.
