@@ -15,7 +15,11 @@ Conventions, fixed here once for every caller:
   (``x̃' = x̃``, ``s = 1``) return the input bit for bit.
 * **Dimensionless forms.** Eigenvalues enter as ``λ_i / λ_1`` (λ scales as 1/length², so the
   ratio does not depend on the mesh's units); coefficients enter the local power laws as
-  ``u = x̃ / c`` with ``c = max_{i≥1} |x̃_i|`` per axis (METHOD §5).
+  ``u = x̃ / c`` with ``c = max_{i≥1} |x̃_i|`` per axis (METHOD §5, :func:`dimensionless`), or —
+  the *per-mode* form, which does not depend on the mesh's orientation — as the length of each
+  mode's coefficient vector, ``ρ_i = ‖x̃_i‖ / max_{k≥1} ‖x̃_k‖``, with the region's share of the
+  mode its signed projection on that vector (:func:`mode_magnitudes`, :func:`mode_shares`,
+  :func:`from_mode_magnitudes`; docs/method.md says when each is used and why).
 """
 from __future__ import annotations
 
@@ -31,6 +35,9 @@ __all__ = [
     "dimensionless",
     "from_dimensionless",
     "edited_coefficients",
+    "mode_magnitudes",
+    "mode_shares",
+    "from_mode_magnitudes",
     "geometric_mean_gate",
     "local_power_law",
     "multi_region_power_law",
@@ -113,6 +120,48 @@ def edited_coefficients(coefficients: np.ndarray, u: np.ndarray, u_new: np.ndarr
     """
     coefficients = np.asarray(coefficients, dtype=float)
     return coefficients + np.asarray(c, dtype=float) * (np.asarray(u_new, dtype=float) - np.asarray(u, dtype=float))
+
+
+def mode_magnitudes(coefficients: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(ρ, c)``: each mode's coefficient vector length over the largest, ρ_i = ‖x̃_i‖ / c with
+    c = max_{i≥1} ‖x̃_i‖ (the per-mode dimensionless form).
+
+    Lengths and their ratios do not change when the mesh is rotated or its units change, so power
+    laws on ρ do not depend on the mesh's orientation (per-axis u = x̃ / c does: a rotation mixes
+    the axes, and each axis is raised to its own power). For a 1-D signal ρ = |u|.
+    """
+    coefficients = np.asarray(coefficients, dtype=float)
+    if coefficients.ndim != 2 or len(coefficients) < 2:
+        raise ValueError("need (m, 3) coefficients with at least two modes")
+    lengths = np.linalg.norm(coefficients, axis=1)
+    c = float(np.max(lengths[1:]))
+    c = c if c > 0 else 1.0
+    return lengths / c, c
+
+
+def mode_shares(region_coefficients: np.ndarray, coefficients: np.ndarray, c: float) -> np.ndarray:
+    """A region's signed share of each mode, p_i = (x̃_seg,i · x̃_i) / (‖x̃_i‖ c): the projection of
+    the region's coefficient vector (Eq. 5) on the body's, in the units of :func:`mode_magnitudes`.
+
+    It plays u_seg's part in the gate G(ρ_i, p_i) of Eq. 7: positive where the region pulls the
+    mode the way the body does (then G = √(ρ_i p_i)), 0 or negative where it does not (G = 0).
+    For a 1-D signal it is sgn(u_i)·u_seg,i, and G is the paper's.
+    """
+    coefficients = np.asarray(coefficients, dtype=float)
+    region_coefficients = np.asarray(region_coefficients, dtype=float)
+    lengths = np.linalg.norm(coefficients, axis=1)
+    projection = np.einsum("ij,ij->i", region_coefficients, coefficients)
+    return np.where(lengths > 0, projection / np.where(lengths > 0, lengths, 1.0), 0.0) / c
+
+
+def from_mode_magnitudes(coefficients: np.ndarray, rho: np.ndarray, rho_new: np.ndarray) -> np.ndarray:
+    """x̃'_i = x̃_i · ρ'_i / ρ_i: each mode's vector keeps its direction and takes its new length.
+    Exactly ``coefficients`` where ρ' = ρ (the identity edit stays bit-exact)."""
+    coefficients = np.asarray(coefficients, dtype=float)
+    rho, rho_new = np.asarray(rho, dtype=float), np.asarray(rho_new, dtype=float)
+    unchanged = rho_new == rho
+    factor = np.where(unchanged | (rho == 0), 1.0, rho_new / np.where(rho > 0, rho, 1.0))
+    return np.where(unchanged[:, None], coefficients, coefficients * factor[:, None])
 
 
 def geometric_mean_gate(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -14,9 +14,12 @@ from allorules.scaling import (
     dimensionless,
     edited_coefficients,
     from_dimensionless,
+    from_mode_magnitudes,
     geometric_mean_gate,
     global_allometric,
     local_power_law,
+    mode_magnitudes,
+    mode_shares,
     multi_region_power_law,
     relative_eigenvalues,
 )
@@ -239,3 +242,59 @@ def test_global_alpha_positive_amplifies_fine_modes(blob):
     gain = np.linalg.norm(out, axis=1)[1:] / np.linalg.norm(x, axis=1)[1:]
     assert np.all(np.diff(gain) >= -1e-12) and gain[-1] > 1.2 and gain[0] == pytest.approx(1.0)
     assert face_areas(apply_to_mesh(basis, vertices, out, 1.0), faces).sum() > face_areas(vertices, faces).sum()
+
+
+# ---------------------------------------------------------------------------------------------
+# The per-mode form: the power law on each mode's coefficient vector length
+
+
+def test_per_mode_form_is_the_paper_power_law_in_one_dimension():
+    """On coefficients along one axis (a 1-D signal) the per-mode and per-axis forms coincide,
+    so the 1-D experiments of Figures 12 and 14 are the same in both."""
+    rng = np.random.default_rng(7)
+    signal = np.zeros((40, 3))
+    signal[:, 1] = rng.normal(size=40) / (1 + np.arange(40))
+    region = np.zeros((40, 3))
+    region[:, 1] = signal[:, 1] * rng.uniform(-0.5, 1.0, size=40)
+    u, c = dimensionless(signal)
+    per_axis = edited_coefficients(signal, u, local_power_law(u, region / c, 0.4), c)
+    rho, scalar_c = mode_magnitudes(signal)
+    assert scalar_c == pytest.approx(c[1])
+    np.testing.assert_allclose(rho, np.abs(u[:, 1]))
+    shares = mode_shares(region, signal, scalar_c)
+    np.testing.assert_allclose(shares, np.sign(u[:, 1]) * region[:, 1] / c[1])
+    per_mode = from_mode_magnitudes(signal, rho, local_power_law(rho, shares, 0.4))
+    np.testing.assert_allclose(per_mode, per_axis, rtol=1e-12, atol=1e-15)
+
+
+def test_per_mode_form_does_not_depend_on_orientation_or_units():
+    rng = np.random.default_rng(8)
+    coefficients = rng.normal(size=(60, 3)) / (1 + np.arange(60))[:, None]
+    region = coefficients * rng.uniform(-0.3, 1.0, size=(60, 1)) + 0.01 * rng.normal(size=(60, 3))
+
+    def edit(x, x_region):
+        rho, c = mode_magnitudes(x)
+        return from_mode_magnitudes(x, rho, multi_region_power_law(rho, [mode_shares(x_region, x, c)], [0.5], 0.1, 1.2))
+
+    rotation = _rotation(11)
+    np.testing.assert_allclose(edit(coefficients @ rotation.T, region @ rotation.T), edit(coefficients, region) @ rotation.T,
+                               rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(edit(1000 * coefficients, 1000 * region), 1000 * edit(coefficients, region), rtol=1e-12)
+    # each mode keeps its direction; only its length changes
+    edited = edit(coefficients, region)
+    cosine = np.einsum("ij,ij->i", edited, coefficients) / np.linalg.norm(edited, axis=1) / np.linalg.norm(coefficients, axis=1)
+    np.testing.assert_allclose(cosine, 1.0, atol=1e-12)
+    # the per-axis form, by contrast, depends on the axes it works in (so it works in the animal's own)
+    def per_axis(x, x_region):
+        u, c = dimensionless(x)
+        return edited_coefficients(x, u, local_power_law(u, x_region / c, 0.5), c)
+
+    assert not np.allclose(per_axis(coefficients @ rotation.T, region @ rotation.T), per_axis(coefficients, region) @ rotation.T,
+                           rtol=1e-3, atol=1e-6)
+
+
+def test_per_mode_identity_edit_is_exact():
+    rng = np.random.default_rng(9)
+    coefficients = rng.normal(size=(30, 3))
+    rho, _ = mode_magnitudes(coefficients)
+    assert np.array_equal(from_mode_magnitudes(coefficients, rho, rho.copy()), coefficients)
