@@ -41,6 +41,7 @@ from .sections import (
 from .preparation import cap_holes, hole_caps
 
 LIMB_REGIONS = ("forelimbs", "hindlimbs")
+CHEST_LIMIT_MARGIN = 0.01   # heart girth's last candidate: this share of the chest's length behind the forelimbs
 PAIRED_REGIONS = LIMB_REGIONS
 TORSO_REGIONS = ("chest", "abdomen")
 # Share of a limb's length left out at the junction and at the tip when the load-bearing
@@ -409,6 +410,46 @@ def peak_stress(body: Body, *, override: SectionChoice | None = None) -> float:
 
 
 # ---------------------------------------------------------------------------------------------
+# Posture: how the limbs stand
+
+
+def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
+    """How the limbs' stance changed from ``before`` to ``after`` (same faces and labels).
+
+    Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
+    centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
+    lowest foot, as a share of the leg's length. Heights are taken along the limbs' mean direction
+    before (shoulders to feet), so no up axis is needed. Nothing rules ask for; the report shows it
+    because an allometric edit can meet every rule yet leave the animal leaning.
+    """
+    limbs_before = [limb for region in LIMB_REGIONS if before.has_region(region) for limb in limb_sections(before, region)]
+    if not limbs_before:
+        return {}
+    carried = carry_fields(before, after.with_vertices(after.vertices))
+    limbs_after = [limb for region in LIMB_REGIONS if carried.has_region(region) for limb in limb_sections(carried, region)]
+
+    down = np.sum([limb.tip - limb.junction for limb in limbs_before], axis=0)
+    down /= np.linalg.norm(down)
+
+    def stance(limbs: list[Limb]) -> tuple[np.ndarray, np.ndarray]:
+        axes = np.array([limb.tip - limb.junction for limb in limbs])
+        heights = -np.array([limb.tip @ down for limb in limbs])
+        lengths = np.array([limb.length for limb in limbs])
+        return axes, (heights - heights.min()) / lengths
+
+    axes_before, lift_before = stance(limbs_before)
+    axes_after, lift_after = stance(limbs_after)
+    change = {}
+    for index, limb in enumerate(limbs_before):
+        cosine = axes_before[index] @ axes_after[index] / (np.linalg.norm(axes_before[index]) * np.linalg.norm(axes_after[index]))
+        change[f"{limb.region}[{limb.part}]"] = {
+            "tilt_degrees": float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
+            "foot_lift": float(lift_after[index] - lift_before[index]),
+        }
+    return change
+
+
+# ---------------------------------------------------------------------------------------------
 # Lengths and girths
 
 
@@ -487,30 +528,46 @@ def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray 
     return loops, np.asarray(kept)
 
 
+def _forelimb_limit(body: Body, axis: np.ndarray) -> float | None:
+    """Position along ``axis`` of the rearmost point where the forelimbs meet the chest (``None``
+    without forelimbs): the front end of where heart girth may be taken."""
+    if not (body.has_region("forelimbs") and body.region_mask("forelimbs").any()):
+        return None
+    forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
+    junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
+    return float((junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min())
+
+
 def chest_girth(body: Body) -> float:
     """Heart girth: the largest closed section of the chest across the torso axis behind the forelimbs.
 
-    "Behind the forelimbs" means every point of the section lies behind (along the torso axis)
-    the rearmost point where the forelimbs meet the body; without forelimbs, any section. On a
-    carried body (:func:`carry_fields`) the candidates are the reference's (the same area
-    quantiles of the chest, cut by planes across the axis of the moved body): the girth is then
-    the largest of a fixed set of continuous functions of the vertices, so it does not jump when
-    a section would cross the forelimbs' limit on a nearly identical mesh.
+    "Behind the forelimbs" means every point of the section lies at least ``CHEST_LIMIT_MARGIN`` of
+    the chest's length behind (along the torso axis) the rearmost point where the forelimbs meet
+    the body; without forelimbs, any section. The candidates are the sections at fixed area
+    quantiles of the chest that lie behind that limit, plus the section at the limit: where the
+    chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
+    with the forelimbs continuously instead of jumping from one quantile to the next. On a carried
+    body (:func:`carry_fields`) the quantile levels are the reference's.
     """
     axis = torso_axis(body)
     key = "measures.chest-candidates"
+    limit = _forelimb_limit(body, axis)
+    part = region_parts(body, "chest")[0]
+    field = part.vertices @ axis
+    if limit is not None:
+        limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
     carried = body.cache.get("measures.carried.chest-candidates")
     if carried is not None:
         loops, _ = _torso_loops(body, "chest", axis, carried)
     else:
         loops, targets = _torso_loops(body, "chest", axis)
-        if body.has_region("forelimbs") and body.region_mask("forelimbs").any():
-            forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
-            junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
-            limit = (junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min()
-            behind = [index for index, loop in enumerate(loops) if (loop.points @ axis).max() <= limit]
-            loops, targets = [loops[index] for index in behind], targets[behind]
         body.cache[key] = targets
+    if limit is not None:
+        # every candidate behind the limit, and the section at the limit itself: so a candidate
+        # crossing the limit leaves or joins where it equals that last section (no jump)
+        loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
+        if field.min() < limit < field.max():
+            loops += isocontour_loops(part.vertices, part.faces, field, limit)[:1]
     if not loops:
         raise MeasurementError(
             "no closed section of the chest behind the forelimbs: the chest region does not go all "

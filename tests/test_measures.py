@@ -340,6 +340,30 @@ def test_chest_girth_is_the_largest_section_behind_the_forelimbs():
     assert region_girth(body, "abdomen") == pytest.approx(2 * np.pi * 2.0, rel=0.01)
 
 
+def test_chest_girth_follows_the_forelimbs_without_jumps():
+    """The torso widens towards the forelimbs (as a real horse's does), so heart girth is taken
+    just behind them. Stretching the front of the chest moves the forelimbs forward smoothly; the
+    girth must follow smoothly, measured afresh or along the reference's carried sections (an
+    optimiser's trial meshes), not jump as area-quantile candidates cross the forelimbs' limit."""
+    body = torso_body()
+    stretches = np.linspace(0.0, 0.06, 13)
+
+    def stretched(amount):
+        vertices = body.vertices.copy()
+        front = vertices[:, 2] > 1.0
+        vertices[front, 2] += amount * (vertices[front, 2] - 1.0)
+        return body.with_vertices(vertices)
+
+    fresh = np.array([region_girth(stretched(amount), "chest") for amount in stretches])
+    region_girth(body, "chest")
+    carried = np.array([region_girth(measures.carry_fields(body, stretched(amount)), "chest") for amount in stretches])
+    for girths in (fresh, carried):
+        steps = np.diff(girths)
+        assert np.all(steps > 0)                                     # moving forward, the chest is wider
+        assert steps.max() < 2.0 * np.median(steps)                  # no jump: even steps
+    np.testing.assert_allclose(carried, fresh, rtol=2e-3)
+
+
 def test_cache_is_per_body():
     body = legs_body()
     first = region_length(body, "forelimbs")
@@ -514,3 +538,25 @@ def test_carried_measures_change_smoothly_with_the_vertices(small_horse):
         assert abs(changes[1e-6][name]) < 1e-4, name
         # linear in epsilon: no jump hides in the change
         assert changes[2e-6][name] == pytest.approx(2 * changes[1e-6][name], rel=0.01, abs=1e-9), name
+
+
+def test_posture_change_measures_a_leaning_leg():
+    from scipy.spatial.transform import Rotation
+
+    from allorules.measures import posture_change
+
+    body = legs_body()
+    cut = leg_cut(body)
+    scaled = body.with_vertices(3.0 * body.vertices + 5.0)          # the same stance, bigger, elsewhere
+    for change in posture_change(body, scaled).values():
+        assert change["tilt_degrees"] == pytest.approx(0.0, abs=1e-6) and change["foot_lift"] == pytest.approx(0.0, abs=1e-9)
+    # lean the second leg 10° forward about its junction, rigidly
+    leaning = body.vertices.copy()
+    leg = (leaning[:, 0] > 2.0) & (leaning[:, 2] < cut + 0.5)
+    pivot = np.array([4.0, 0.0, cut])
+    leaning[leg] = (leaning[leg] - pivot) @ Rotation.from_euler("y", 10, degrees=True).as_matrix().T + pivot
+    change = posture_change(body, body.with_vertices(leaning))
+    tilts = sorted(value["tilt_degrees"] for value in change.values())
+    assert tilts[0] == pytest.approx(0.0, abs=1e-6) and tilts[1] == pytest.approx(10.0, abs=1e-6)
+    lifted = max(change.values(), key=lambda value: value["tilt_degrees"])
+    assert lifted["foot_lift"] == pytest.approx(1 - np.cos(np.radians(10.0)), abs=0.004)   # its foot leaves the ground
