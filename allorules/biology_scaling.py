@@ -26,21 +26,16 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
-from .basis import HarmonicBasis, transform
+from .basis import HarmonicBasis
 from .body import Body
 from .errors import AllorulesError, ScalingError, SegmentationError
-from .global_scaling import StressGauge, check_mass_ratio, count_flipped_faces, step_basis, step_ratios
+from .global_scaling import ScalingResult, StressGauge, check_mass_ratio, count_flipped_faces, step_basis, step_ratios
 from .progress import RunProgress
-from .scaling import (
-    apply_to_mesh,
-    dimensionless,
-    edited_coefficients,
-    local_power_law,
-)
-from .solver import cached_measure, energy_terms, solve_step
+from .solver import StepTransform, cached_measure, energy_terms, solve_step
 from .specs import ConstraintContext
 
 log = logging.getLogger("allorules")
@@ -48,6 +43,7 @@ log = logging.getLogger("allorules")
 EXPONENT_TOLERANCE = 0.02
 MASS_TOLERANCE = 0.01
 CONSTRAINT_TOLERANCE = 0.02
+POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
 
 
 # ---------------------------------------------------------------------------------------------
@@ -115,38 +111,25 @@ class RuleOutcome:
 
 
 @dataclass
-class BiologyScalingResult:
+class BiologyScalingResult(ScalingResult):
     """A ruleset run. Ratios are final/initial, measured afresh on the output and the input."""
 
-    body: Body
-    ruleset: str
-    target_mass_ratio: float
-    steps: list[RulesetStep] = field(default_factory=list)
+    mode: ClassVar[str] = "ruleset"
+
+    ruleset: str = ""
     rules: list[RuleOutcome] = field(default_factory=list)
     constraints: dict[str, float] = field(default_factory=dict)   # whole-run residuals
-    mass_ratio: float = 1.0
     stress_ratio: float | None = None
-    flipped_faces: int = 0
-    converged: bool = False
-    messages: list[str] = field(default_factory=list)
-    section: dict | None = None
+    transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
+    posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift
 
-    def as_dict(self) -> dict:
+    def details(self) -> dict:
         return {
-            "mode": "ruleset",
             "ruleset": self.ruleset,
-            "target_mass_ratio": float(self.target_mass_ratio),
-            "mass_ratio": float(self.mass_ratio),
-            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
-            "steps": len(self.steps),
-            "converged": bool(self.converged),
+            "transform": self.transform,
             "rules": [rule.as_dict() for rule in self.rules],
             "constraints": {key: float(value) for key, value in self.constraints.items()},
-            "step_details": [step.as_dict() for step in self.steps],
-            "flipped_faces": int(self.flipped_faces),
-            "faces": int(len(self.body.faces)),
-            "messages": list(self.messages),
-            "section": self.section,
+            "posture": self.posture,
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE},
         }
 
@@ -221,7 +204,7 @@ def scale_with_ruleset(
     gauge = _stress_gauge(initial, registry, section)
     measure = cached_measure(registry, {"stress": gauge.stress} if gauge else None)
     result = BiologyScalingResult(body=initial, ruleset=ruleset.name, target_mass_ratio=target,
-                                  section=gauge.describe() if gauge else None)
+                                  section=gauge.describe() if gauge else None, transform=ruleset.solver.transform)
 
     current, basis, jacobian, start = initial, None, None, None
     progress = progress or RunProgress()
@@ -244,6 +227,8 @@ def scale_with_ruleset(
         jacobian, start = solution.jacobian, solution.variables
         solved = time.perf_counter()
         following = _fresh(solution.body)
+        if ruleset.solver.posture == "keep":
+            following = following.with_vertices(restore_limb_axes(current, following))
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
         mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
         stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None
@@ -263,6 +248,23 @@ def scale_with_ruleset(
     return result
 
 
+def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) -> None:
+    """How the legs' stance changed over the run (no rule asks for it; the report shows it)."""
+    from .measures import posture_change
+
+    try:
+        result.posture = posture_change(initial, final)
+    except AllorulesError as error:   # a body whose limbs cannot be measured: say so, do not fail the run
+        log.warning("posture not measured: %s", error)
+        return
+    if result.posture:
+        tilt = max(change["tilt_degrees"] for change in result.posture.values())
+        lift = max(abs(change["foot_lift"]) for change in result.posture.values())
+        if tilt > POSTURE_TILT_WARNING:
+            log.warning("the legs lean by up to %.1f° and a foot moved %.1f%% of a leg's length off the ground; "
+                        "every rule may still be met (see docs/biology-scaling.md, posture)", tilt, 100 * lift)
+
+
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:
     """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
     final = _fresh(result.body)
@@ -270,6 +272,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         raise ScalingError("the scaled mesh has non-finite vertices; nothing was written")
     ratio = result.target_mass_ratio
     result.flipped_faces = count_flipped_faces(initial.vertices, final.vertices, initial.faces)
+    _report_posture(result, initial, final)
     mass_term = energy_terms(ruleset)[0]
     result.mass_ratio = measure(mass_term.measure, final, mass_term.region) / measure(mass_term.measure, initial, mass_term.region)
     result.stress_ratio = gauge.stress(final) / gauge.stress(initial) if gauge else None
@@ -304,15 +307,63 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
 
 
 # ---------------------------------------------------------------------------------------------
+# Posture
+
+
+POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
+
+
+def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
+    """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
+    when they already agree (to 1e-12)."""
+    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
+    axis, cosine = np.cross(start, end), float(start @ end)
+    if np.linalg.norm(axis) < 1e-12 and cosine > 0:
+        return None
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
+
+
+def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
+    """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
+
+    Eq. 9 changes a limb's modes by a different factor than the body's, so a step can meet every
+    rule while the leg leans a degree or two (docs/biology-scaling.md, posture). Per limb part:
+    R = the smallest rotation taking its axis on ``moved`` (junction centroid → foot tip) back to
+    its axis on ``reference``; vertices turn by R about the junction, x' = x + w·(J + R(x − J) − x),
+    with w rising smoothly (smoothstep) from 0 at the junction to 1 at ``POSTURE_BLEND`` of the
+    limb's length along its own field, so the shoulder stays joined to the body. Rigid below the
+    blend: lengths, girths and the load-bearing section are kept. Bodies without limbs come back
+    unchanged.
+    """
+    from .measures import LIMB_REGIONS, carry_fields, limb_sections
+
+    vertices = moved.vertices.copy()
+    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
+    for region in LIMB_REGIONS:
+        if not reference.has_region(region) or reference.labels is None or not reference.region_mask(region).any():
+            continue
+        for before, after in zip(limb_sections(reference, region), limb_sections(carried, region)):
+            if not before.sections:
+                continue
+            rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
+            if rotation is None:
+                continue
+            fractions = np.array([section.fraction for section in before.sections])
+            lowest = float(before.field.min())
+            blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
+            if blend_level <= lowest:
+                continue
+            ramp = np.clip((before.field - lowest) / (blend_level - lowest), 0.0, 1.0)
+            weight = ramp * ramp * (3.0 - 2.0 * ramp)                    # smoothstep
+            index = after.mesh.vertex_index
+            turned = after.junction + (vertices[index] - after.junction) @ rotation.T
+            vertices[index] += weight[:, None] * (turned - vertices[index])
+    return vertices
+
+
+# ---------------------------------------------------------------------------------------------
 # Local scaling (Eq. 5–7) and the arithmetic comparison
-
-
-def region_coefficients(basis: HarmonicBasis, body: Body, region: str) -> np.ndarray:
-    """x̃_seg = Hᵀ D (I_seg ⊙ x) (paper Eq. 5), x taken about the body's area-weighted centroid so
-    that the result does not depend on where the mesh sits (see :mod:`allorules.solver`)."""
-    centre = (basis.mass @ body.vertices) / basis.mass.sum()
-    mask = body.region_mask(region).astype(float)
-    return transform(basis, (body.vertices - centre) * mask[:, None])
 
 
 def scale_region(
@@ -324,11 +375,14 @@ def scale_region(
     basis: HarmonicBasis | None = None,
     arithmetic_factor: float | None = None,
     use_cache: bool = True,
+    form: str = "per-axis",
 ) -> Body:
     """Local allometric scaling of one region (paper Eq. 5–7, dimensionless per METHOD §5).
 
     u'_i = sgn(u_i)|u_i|^(1 + α·G(u_i, u_seg,i)); α > 0 shrinks what the region shares with the
-    body, α < 0 grows it, smoothly, without a seam. ``arithmetic_factor`` = f instead applies the
+    body, α < 0 grows it, smoothly, without a seam. ``form``: ``"per-axis"`` (default, METHOD §5, in
+    the animal's own axes) or ``"per-mode"`` (on each mode's coefficient vector length), see
+    :class:`allorules.solver.StepTransform`. ``arithmetic_factor`` = f instead applies the
     paper's bad example x̃' = x̃ + (f − 1)·x̃_seg (the region's vertices scaled by f about the
     body's centroid): for comparison only, it tears the region's boundary open.
     """
@@ -348,15 +402,11 @@ def scale_region(
         centre = (basis.mass @ body.vertices) / basis.mass.sum()
         mask = body.region_mask(region).astype(float)[:, None]
         return body.with_vertices(body.vertices + (arithmetic_factor - 1.0) * mask * (body.vertices - centre))
-    coefficients = transform(basis, body.vertices)
-    seg = region_coefficients(basis, body, region)
-    u, c = dimensionless(coefficients)
+    step = StepTransform.of(body, basis, (region,), form)
     try:
-        u_new = local_power_law(u, seg / c, float(alpha))                  # Eq. 6 with the gate of Eq. 7
+        return body.with_vertices(step.vertices(np.array([1.0, 0.0, float(alpha)])))   # Eq. 6: s = 1, α_0 = 0
     except ValueError as error:
         raise ScalingError(f"alpha {alpha:g} is too large for region {region!r}: {error}") from None
-    new = edited_coefficients(coefficients, u, u_new, c)
-    return body.with_vertices(apply_to_mesh(basis, body.vertices, new, 1.0, coefficients=coefficients))
 
 
 def seam_strain(before: np.ndarray, after: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> dict[str, float]:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, ClassVar
 
 import numpy as np
 from scipy.optimize import brentq
@@ -199,35 +199,42 @@ class ScalingStep:
 
 @dataclass
 class ScalingResult:
-    """A global scaling run. ``mass_ratio``/``stress_ratio`` are measured on the final body
-    against the input body (stress at the same material section, see :class:`StressGauge`)."""
+    """A scaling run. ``mass_ratio``/``stress_ratio`` are measured on the final body against the
+    input body (stress at the same material section, see :class:`StressGauge`). The global run's
+    result; :class:`allorules.biology_scaling.BiologyScalingResult` adds a ruleset run's figures."""
+
+    mode: ClassVar[str] = "global"
 
     body: Body
     target_mass_ratio: float
-    steps: list[ScalingStep] = field(default_factory=list)
+    steps: list = field(default_factory=list)
     mass_ratio: float = 1.0
-    stress_ratio: float = 1.0
+    stress_ratio: float | None = 1.0
     flipped_faces: int = 0
     converged: bool = False
     messages: list[str] = field(default_factory=list)
     section: dict | None = None
 
     def as_dict(self) -> dict:
+        """The report (JSON-ready): the figures every run has, then :meth:`details`."""
         return {
-            "mode": "global",
+            "mode": self.mode,
             "target_mass_ratio": float(self.target_mass_ratio),
             "mass_ratio": float(self.mass_ratio),
-            "stress_ratio": float(self.stress_ratio),
+            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
             "steps": len(self.steps),
             "step_details": [step.as_dict() for step in self.steps],
-            "alphas": [float(step.alpha) for step in self.steps],
-            "scales": [float(step.scale) for step in self.steps],
             "flipped_faces": int(self.flipped_faces),
             "faces": int(len(self.body.faces)),
             "converged": bool(self.converged),
             "messages": list(self.messages),
             "section": self.section,
+            **self.details(),
         }
+
+    def details(self) -> dict:
+        """What only this kind of run reports: the global run's α and s per step."""
+        return {"alphas": [float(step.alpha) for step in self.steps], "scales": [float(step.scale) for step in self.steps]}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -85,6 +85,8 @@ class SolverSettings:
     max_evaluations: int = 400
     scale_bounds: tuple[float, float] = (0.5, 2.0)
     alpha_bounds: tuple[float, float] = (-1.0, 1.0)
+    transform: str = "per-axis"     # METHOD §5, in the animal's own axes; or "per-mode" (docs/biology-scaling.md)
+    posture: str = "keep"           # or "free": turn limbs back to their direction after each step
 
 
 @dataclass(frozen=True)
@@ -844,6 +846,20 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
             problems.append(RulesetError(f"solver.alpha_bounds must contain 0 (α = 0 is no change), not {values[key]}", at))
             continue
         settings[key] = (float(low), float(high))
+    if "transform" in values:
+        from .solver import TRANSFORM_FORMS
+
+        if values["transform"] in TRANSFORM_FORMS:
+            settings["transform"] = values["transform"]
+        else:
+            problems.append(RulesetError(f"solver.transform {values['transform']!r} is not a transform form; use "
+                                         f"{' or '.join(TRANSFORM_FORMS)}", where.get("transform", whole)))
+    if "posture" in values:
+        if values["posture"] in ("keep", "free"):
+            settings["posture"] = values["posture"]
+        else:
+            problems.append(RulesetError(f"solver.posture {values['posture']!r} is neither 'keep' (turn limbs back to "
+                                         "their direction after each step) nor 'free'", where.get("posture", whole)))
     if "algorithm" in values:
         algorithm = values["algorithm"]
         try:
@@ -933,6 +949,7 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "algorithm": solver.algorithm, "relative_tolerance": solver.relative_tolerance,
         "parameter_tolerance": solver.parameter_tolerance, "max_evaluations": solver.max_evaluations,
         "scale_bounds": list(solver.scale_bounds), "alpha_bounds": list(solver.alpha_bounds),
+        "transform": solver.transform, "posture": solver.posture,
     }
     return document
 

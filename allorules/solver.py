@@ -8,7 +8,10 @@ dimensionless coefficients and u_j those of region j's vertices alone (Eq. 5, sa
     x̃'_i = s · c · sgn(u_i) |u_i|^(1 + α_0 + Σ_j α_j G(u_i, u_j,i)),   i ≥ 1,
 
 mode 0 untouched, detail beyond the m-th mode added back × s
-(:func:`allorules.scaling.multi_region_power_law`, :func:`allorules.scaling.apply_to_mesh`).
+(:func:`allorules.scaling.multi_region_power_law`, :func:`allorules.scaling.apply_to_mesh`). The
+axes of "per axis" are the animal's own (forward, up, side: :func:`anatomical_axes`), so a turned
+mesh gives the same animal turned; ``solver.transform: per-mode`` is the alternative on each
+mode's vector length (docs/biology-scaling.md).
 Region coefficients are taken of the vertices *relative to the body's area-weighted centroid*
 (the point mode 0 represents), so that the gate G, and with it the result, does not depend on
 where the mesh sits in space (Eq. 5 on raw coordinates would).
@@ -69,7 +72,14 @@ import numpy as np
 from .basis import HarmonicBasis, transform
 from .body import Body
 from .errors import AllorulesError, ScalingError
-from .scaling import apply_to_mesh, dimensionless, edited_coefficients, multi_region_power_law
+from .scaling import (
+    apply_to_mesh,
+    dimensionless,
+    from_mode_magnitudes,
+    mode_magnitudes,
+    mode_shares,
+    multi_region_power_law,
+)
 from .specs import ConstraintContext
 
 log = logging.getLogger("allorules")
@@ -82,6 +92,7 @@ OUT_OF_BOUNDS_PENALTY = 1e3
 JACOBIAN_STEP_SCALE = 1e-3     # relative to s
 JACOBIAN_STEP_ALPHA = 1e-3
 GAUSS_NEWTON_TRIALS = 6
+TRANSFORM_FORMS = ("per-axis", "per-mode")
 
 Measure = Callable[[str, Body, "str | None"], float]
 
@@ -140,36 +151,83 @@ def cached_measure(registry, overrides: Mapping[str, Callable[[Body], float]] | 
 # The step's transform
 
 
+def anatomical_axes(body: Body) -> np.ndarray:
+    """The animal's own axes as rows (forward, up, side), orthonormal and right-handed, in mesh
+    coordinates: from ``body.frame`` when the labeller found one; else from the regions (forward:
+    abdomen → head, neck or chest; up: limbs → torso); else the mesh's own axes."""
+    forward = up = None
+    if body.frame is not None:
+        forward, up = np.asarray(body.frame.forward, dtype=float), np.asarray(body.frame.up, dtype=float)
+    elif body.labels is not None:
+        def centroid(names: tuple[str, ...]) -> np.ndarray | None:
+            mask = np.zeros(len(body.vertices), dtype=bool)
+            for name in names:
+                if body.has_region(name):
+                    mask |= body.region_mask(name)
+            return body.vertices[mask].mean(axis=0) if mask.any() else None
+
+        front = centroid(("head", "neck"))
+        front = front if front is not None else centroid(("chest",))
+        back, torso, limbs = centroid(("abdomen",)), centroid(("chest", "abdomen")), centroid(("forelimbs", "hindlimbs"))
+        if all(point is not None for point in (front, back, torso, limbs)):
+            forward, up = front - back, torso - limbs
+    if forward is None or up is None or np.linalg.norm(np.cross(forward, up)) < 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+        return np.eye(3)
+    forward = forward / np.linalg.norm(forward)
+    up = up - (up @ forward) * forward
+    up = up / np.linalg.norm(up)
+    return np.array([forward, up, np.cross(forward, up)])
+
+
 @dataclass
 class StepTransform:
-    """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j."""
+    """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j.
+
+    ``form`` is how coefficients are made dimensionless (:mod:`allorules.scaling`): ``"per-axis"``
+    (METHOD §5: u = x̃ / c per axis, the power law on each axis) or ``"per-mode"`` (ρ_i = ‖x̃_i‖ / c,
+    the power law on each mode's vector length, its direction kept; u_j = the region's share of
+    the mode). ``u`` and each ``region_us[j]`` are (m, 3) per axis and (m,) per mode.
+    """
 
     body: Body
     basis: HarmonicBasis
     regions: tuple[str, ...]
     coefficients: np.ndarray
     u: np.ndarray
-    c: np.ndarray
+    c: np.ndarray | float
     region_us: list[np.ndarray]
+    form: str = "per-axis"
+    axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
 
     @classmethod
-    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...]) -> "StepTransform":
+    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis") -> "StepTransform":
+        if form not in TRANSFORM_FORMS:
+            raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
         coefficients = transform(basis, body.vertices)
-        u, c = dimensionless(coefficients)
+        axes = anatomical_axes(body) if form == "per-axis" else None
+        # per axis: the axes are the animal's own (forward, up, side), so that the result does not
+        # depend on how the mesh is turned; the coefficients of those coordinates are x̃ Aᵀ.
+        u, c = dimensionless(coefficients @ axes.T) if form == "per-axis" else mode_magnitudes(coefficients)
         # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
-        centre = (basis.mass @ body.vertices) / basis.mass.sum()
-        centred = body.vertices - centre
+        centred = body.vertices - (basis.mass @ body.vertices) / basis.mass.sum()
         region_us = []
         for region in regions:
             mask = body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
-            region_us.append(transform(basis, centred * mask[:, None]) / c)     # x̃_seg / c
-        return cls(body, basis, tuple(regions), coefficients, u, c, region_us)
+            region_coefficients = transform(basis, centred * mask[:, None])            # x̃_seg
+            region_us.append(region_coefficients @ axes.T / c if form == "per-axis"
+                             else mode_shares(region_coefficients, coefficients, c))
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
         """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept)."""
         scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
-        new_coefficients = edited_coefficients(self.coefficients, self.u, u_new, self.c)
+        if self.form == "per-axis":
+            # x̃' = x̃ + c·(u' − u), the change taken in the animal's axes and turned back to the
+            # mesh's; exactly x̃ where u' = u
+            new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
+        else:
+            new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
         return apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
 
     def body_at(self, variables: np.ndarray) -> Body:
@@ -378,7 +436,7 @@ def solve_step(
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions)
-    step = StepTransform.of(body, basis, regions)
+    step = StepTransform.of(body, basis, regions, settings.transform)
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial)
 
     count = 2 + len(regions)

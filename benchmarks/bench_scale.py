@@ -42,6 +42,10 @@ def run(name: str, body: Body, modes: int | None) -> None:
           f"flipped faces {result.flipped_faces}")
     for rule in result.rules:
         print(f"  {rule.id:16s} target {rule.exponent:.3f} achieved {rule.achieved_exponent:.3f}")
+    if result.posture:
+        print(f"  posture ({ruleset.solver.posture}): legs lean up to "
+              f"{max(change['tilt_degrees'] for change in result.posture.values()):.2f}°, feet lift up to "
+              f"{100 * max(change['foot_lift'] for change in result.posture.values()):.1f}% of a leg")
     for message in result.messages:
         print(f"  ! {message}")
 

@@ -369,10 +369,19 @@ def test_solver_errors(tmp_path, registry):
         "solver: {algorithm: LN_FANCY}": "not an nlopt algorithm",
         "solver: {algorithm: LD_MMA}": "not a derivative-free nlopt algorithm",
         "solver: {relative_tolerance: 0}": "greater than 0",
+        "solver: {transform: per-vertex}": "per-mode",
+        "solver: {posture: upright}": "posture",
     }
     for line, message in cases.items():
         _, problems = single_problem(tmp_path, MINIMAL + line + "\n", registry)
         assert message in problems[0] and ":8" in problems[0], (line, problems)
+
+
+def test_transform_form_and_posture_are_the_methods_unless_the_ruleset_says(tmp_path, registry):
+    solver = load_ruleset("quadruped", registry).solver
+    assert (solver.transform, solver.posture) == ("per-axis", "keep")
+    ruleset = load_ruleset(write(tmp_path, "axis.yaml", MINIMAL + "solver: {transform: per-mode, posture: free}\n"), registry)
+    assert (ruleset.solver.transform, ruleset.solver.posture) == ("per-mode", "free")
 
 
 def test_numbers_without_a_dot_are_numbers(tmp_path, registry):

@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ("--alpha", dict(type=float, metavar="A", help="with --region: the local exponent (α > 0 shrinks the region, α < 0 grows it)")),
         ("--arithmetic", dict(type=float, metavar="F", help="with --region: scale the region's vertices by F instead "
                                                              "(the paper's arithmetic variant, for comparison only: it tears seams)")),
+        ("--transform", dict(choices=("per-mode", "per-axis"), help="how the power law acts on the coefficients: "
+                             "per-axis (default; METHOD §5, in the animal's own axes) or per-mode (on each mode's vector "
+                             "length); overrides the ruleset's solver.transform")),
         ("--mass-ratio", dict(type=float, metavar="R", help="total body-mass ratio (2 doubles the mass)")),
         ("-o", dict(dest="output", metavar="OUT", help="output mesh (format from the extension)")),
         ("--report", dict(metavar="REPORT.json", help="write the run's report as JSON")),
@@ -82,6 +85,11 @@ def format_table(result) -> str:
                  f"{'converged' if result.converged else 'NOT converged'}")
     for key, value in result.constraints.items():
         lines.append(f"constraint {key}: residual {value:+.4f}")
+    if result.posture:
+        tilt = max(change["tilt_degrees"] for change in result.posture.values())
+        lift = max(change["foot_lift"] for change in result.posture.values())
+        lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length (not a rule; "
+                     "see the report's posture)")
     return "\n".join(lines)
 
 
@@ -119,7 +127,7 @@ def _run_local(arguments, prepared, body, mesh: Path, output: Path) -> int:
     if arguments.arithmetic is not None:
         log.warning("--arithmetic: the paper's bad example, for comparison only; the region's boundary will tear")
     scaled = scale_region(body, arguments.region, alpha, modes=arguments.modes, arithmetic_factor=arguments.arithmetic,
-                          use_cache=not getattr(arguments, "no_cache", False))
+                          use_cache=not getattr(arguments, "no_cache", False), form=arguments.transform or "per-axis")
     from ..global_scaling import count_flipped_faces
 
     seam = seam_strain(body.vertices, scaled.vertices, body.faces, body.region_mask(arguments.region))
@@ -146,6 +154,10 @@ def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     ruleset = override_exponents(ruleset, parse_rule_overrides(arguments.rule or []), registry)
+    if arguments.transform:
+        from dataclasses import replace
+
+        ruleset = replace(ruleset, solver=replace(ruleset.solver, transform=arguments.transform))
     progress = run_progress("scaling steps")
     section = None
     if getattr(arguments, "section", None):
