@@ -253,7 +253,16 @@ def test_cli_local_scaling_writes_mesh_and_report(mesh_files, tmp_path, capsys):
     assert out.exists()
     data = json.loads(report.read_text())
     assert data["mode"] == "local" and data["region"] == "head" and data["seam"]["seam"] < 2.0
+    assert data["transform"] == "per-axis"
     assert "seam" in capsys.readouterr().out
+    # --transform per-mode: the other form of the power law, a different mesh
+    other, other_report = tmp_path / "big-head-per-mode.obj", tmp_path / "local-per-mode.json"
+    assert main(["scale", str(mesh), "--region", "head", "--alpha", "-0.2", "--segmentation", str(labels), "--modes",
+                 str(MODES), "--no-cache", "--transform", "per-mode", "-o", str(other), "--report", str(other_report)]) == 0
+    assert json.loads(other_report.read_text())["transform"] == "per-mode"
+    import trimesh
+
+    assert not np.allclose(trimesh.load(other, process=False).vertices, trimesh.load(out, process=False).vertices)
 
 
 def test_cli_unconverged_run_fails_without_writing_the_mesh(mesh_files, tmp_path, registry, capsys):

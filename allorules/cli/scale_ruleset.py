@@ -134,7 +134,7 @@ def _run_local(arguments, prepared, body, mesh: Path, output: Path) -> int:
     flipped = count_flipped_faces(body.vertices, scaled.vertices, body.faces)
     save_scaled(output, prepared, body, scaled.vertices, arguments)
     report = {"mode": "arithmetic" if arguments.arithmetic is not None else "local", "region": arguments.region,
-              "alpha": alpha, "arithmetic_factor": arguments.arithmetic, "seam": seam, "flipped_faces": flipped,
+              "transform": arguments.transform or "per-axis", "alpha": alpha, "arithmetic_factor": arguments.arithmetic, "seam": seam, "flipped_faces": flipped,
               "output": str(output)}
     if arguments.report:
         write_report(arguments.report, report)
