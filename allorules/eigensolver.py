@@ -7,18 +7,17 @@ eigenvalues in ascending order and D-orthonormal eigenvectors (Hᵀ D H = I).
 Methods:
 
 - ``"dense"``: LAPACK on the full matrices, for small meshes.
-- ``"bands"`` (spectrum slicing, Vallet & Lévy 2008): bands from the bottom of the spectrum
-  up. Each band factorises ``L − σD`` once (SuperLU, symmetric ordering, diagonal pivots only);
-  the pivots' signs give the inertia of ``L − σD`` (Sylvester's law: the number of negative
-  pivots is the number of eigenvalues below σ), so the window between two shifts holds a known
-  number of pairs, and a window is accepted only when exactly that many are found: none missed,
-  none duplicated, also in clusters of repeated eigenvalues cut by a shift. Inside a band, a
-  block Lanczos run on the shift-invert operator ``(L − σD)⁻¹ D`` (small blocks, full
-  reorthogonalisation by block Gram–Schmidt, thick restart) finds the pairs nearest σ, D-
-  orthogonal to the pairs already found nearby; pairs above σ that converge on the way fill
-  the bottom of the next window. Any failed check falls back to ``"eigsh"`` (logged), never to
-  a partial basis. Warm start (``initial``): the previous basis's vectors for each window,
-  mixed into the band's starting block.
+- ``"bands"`` (spectrum slicing, Vallet & Lévy 2008): the spectrum is cut into consecutive
+  bands of ~``band_size`` eigenpairs. Each band factorises ``L − σD`` once (sparse LU, symmetric
+  ordering, no off-diagonal pivoting) and runs ARPACK's implicitly restarted Lanczos with the
+  shift-invert operator ``(L − σD)⁻¹ D`` on it. The same factorisation gives the inertia of
+  ``L − σD`` (Sylvester's law: the number of negative pivots is the number of eigenvalues below
+  σ), so every band *knows* how many eigenpairs lie below its shift: a pair Lanczos missed (one
+  copy of an exactly repeated eigenvalue, say) is recovered by a run deflated against what was
+  found, and none is duplicated. Band edges are placed in a wide spectral gap, never inside a
+  cluster of (nearly) repeated eigenvalues; the last band is checked by one more inertia count.
+  Warm start (``initial``): the previous basis's vectors whose Rayleigh quotients on the new
+  mesh fall in a band start that band's Lanczos run.
 - ``"eigsh"``: scipy's shift-invert Lanczos over the whole range, the reference.
 
 ``terminal_progress`` makes a tqdm bar callback when stderr is a terminal (``None`` otherwise).
@@ -38,7 +37,7 @@ import scipy.sparse.linalg
 log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
-BAND_SIZE = 100                   # pairs per band (docs/benchmarks.md)
+BAND_SIZE = 32                    # pairs per band: ARPACK overhead grows with it (docs/benchmarks.md)
 
 Progress = Callable[[int, int], None]
 
@@ -125,14 +124,7 @@ def _eigsh(stiffness: sparse.spmatrix, mass: np.ndarray, count: int) -> tuple[np
 
 
 # --------------------------------------------------------------------------------------------
-# Spectrum slicing: bands verified by inertia, a blocked shift-invert Davidson method inside
-
-
-RESIDUAL_TOLERANCE = 1e-9   # accept a pair when ‖L x − θ D x‖_{D⁻¹} ≤ tol · max(|θ|, λ_floor)
-BLOCK_SIZE = 4              # Krylov block: small keeps the polynomial degree high (docs/benchmarks.md)
-MAX_ITERATIONS = 2000       # block steps per band; a band that needs more falls back to the reference
-MAX_RESTARTS = 3            # thick restarts per band before falling back to the reference
-CHECK_EVERY = 24            # columns added between Rayleigh–Ritz checks
+# Spectrum slicing
 
 
 @dataclass
@@ -144,14 +136,12 @@ class _ShiftedFactor:
     below: int
 
 
-def _factorise(stiffness: sparse.csc_matrix, mass_matrix: sparse.csc_matrix, shift: float,
-               nudge: float | None = None) -> _ShiftedFactor:
+def _factorise(stiffness: sparse.csc_matrix, mass_matrix: sparse.csc_matrix, shift: float) -> _ShiftedFactor:
     """Sparse LU of L − σD with a symmetric ordering and diagonal pivots only, so that
     L − σD = Pᵀ (L̂ diag(d) L̂ᵀ) P and, by Sylvester's law of inertia, the number of negative
     pivots d is the number of eigenvalues of L h = λ D h below σ."""
     scale = abs(shift) + float(stiffness.diagonal().max() / mass_matrix.diagonal().max())
-    nudge = 1e-9 * scale if nudge is None else nudge
-    for attempt in range(8):
+    for attempt in range(6):
         try:
             factor = scipy.sparse.linalg.splu(
                 (stiffness - shift * mass_matrix).tocsc(),
@@ -160,305 +150,177 @@ def _factorise(stiffness: sparse.csc_matrix, mass_matrix: sparse.csc_matrix, shi
                 options={"SymmetricMode": True},
             )
         except RuntimeError:  # exactly singular: σ hit an eigenvalue; nudge it
-            shift += nudge * (attempt + 1)
+            shift += 1e-9 * scale * (attempt + 1)
             continue
         if np.array_equal(factor.perm_r, factor.perm_c):
-            pivots = np.abs(factor.U.diagonal())
-            # No pivoting: a tiny pivot (σ very near an eigenvalue) means element growth and
-            # solves too inexact for 1e-9 residuals (measured); move σ a little instead.
-            if np.all(np.isfinite(pivots)) and pivots.min() > 1e-9 * pivots.max():
-                return _ShiftedFactor(shift, factor.solve, int(np.count_nonzero(factor.U.diagonal() < 0)))
-        shift += nudge * (attempt + 1)
+            pivots = factor.U.diagonal()
+            if np.all(np.isfinite(pivots)) and np.all(pivots != 0):
+                return _ShiftedFactor(shift, factor.solve, int(np.count_nonzero(pivots < 0)))
+        shift += 1e-9 * scale * (attempt + 1)
     raise np.linalg.LinAlgError(f"could not factorise L - sigma D near sigma={shift:g}")
 
 
-def _orthonormalise(block: np.ndarray, against: list[np.ndarray], mass: np.ndarray,
-                    drop: float = 1e-8) -> np.ndarray:
-    """D-orthonormal columns spanning the part of ``block`` D-orthogonal to every (D-orthonormal)
-    basis in ``against``: two passes of block classical Gram–Schmidt, each followed by SVQB
-    (eigen-decomposition of the block's Gram matrix). Directions that (nearly) vanish — shorter
-    than ``drop`` of their length after the projection — are dropped. Level-3 BLAS throughout."""
-    lengths = np.sqrt(np.einsum("ij,i,ij->j", block, mass, block))
-    block = block[:, lengths > 0] / lengths[lengths > 0]
+def _orthonormalise(block: np.ndarray, basis: np.ndarray | None, mass: np.ndarray) -> np.ndarray:
+    """D-orthonormalise ``block`` against the D-orthonormal ``basis`` and within itself
+    (two passes of block Gram–Schmidt, SVQB: directions that vanish are dropped)."""
     for _ in range(2):
-        for basis in against:
-            if basis.shape[1] and block.shape[1]:
-                block = block - basis @ (basis.T @ (mass[:, None] * block))
-        if not block.shape[1]:
-            return block
+        if basis is not None and basis.shape[1]:
+            block = block - basis @ (basis.T @ (mass[:, None] * block))
+        lengths = np.sqrt(np.einsum("ij,i,ij->j", block, mass, block))
+        block = block[:, lengths > 0] / lengths[lengths > 0]
         gram = block.T @ (mass[:, None] * block)
         gram = 0.5 * (gram + gram.T)
         values, rotation = np.linalg.eigh(gram)
-        keep = values > drop ** 2
+        keep = values > 1e-12 * max(values[-1], np.finfo(float).tiny) if len(values) else values > 0
         if not np.any(keep):
             return block[:, :0]
         block = block @ (rotation[:, keep] / np.sqrt(values[keep]))
     return block
 
 
-class _SliceSolver:
+CLUSTER_GAP = 1e-6     # relative: closer eigenvalues count as one (repeated) eigenvalue
+EDGE_GAP = 1e-4        # relative: smallest gap a band edge may be placed in
+
+
+def _band_cut(values: np.ndarray, below: int, shift: float) -> tuple[int, float]:
+    """Where to end a band: ``(cut, upper)`` accepts ``values[:cut]``, all below ``upper``.
+
+    ``values`` (ascending) are the pairs found nearest σ; the first ``below`` lie under σ and
+    are complete (inertia). The last cluster found may continue past what was computed, so it
+    is never accepted; the cut goes in the widest relative gap (at least EDGE_GAP) of the upper
+    half of the rest, else at σ itself.
+    """
+    last = len(values) - 1
+    while last > below and values[last] - values[last - 1] <= CLUSTER_GAP * abs(values[last]):
+        last -= 1
+    # values[last] starts the final cluster: cuts can go at indices below+1 .. last.
+    for first in (below + max(1, (last - below) // 2), below + 1):
+        candidates = np.arange(first, last + 1)
+        if len(candidates) == 0:
+            continue
+        gaps = (values[candidates] - values[candidates - 1]) / np.abs(values[candidates])
+        best = int(np.argmax(gaps))
+        if gaps[best] >= EDGE_GAP:
+            cut = int(candidates[best])
+            return cut, 0.5 * (values[cut - 1] + values[cut])
+    return below, shift
+
+
+class _BandSolver:
     """State shared by the bands of one spectrum-slicing solve."""
 
-    def __init__(self, stiffness, mass, band_size, block_size, tolerance, initial):
+    def __init__(self, stiffness, mass, count, band_size, initial, progress):
         self.stiffness = stiffness.tocsr()
         self.stiffness_csc = stiffness.tocsc()
         self.mass = mass
-        self.inverse_mass = 1.0 / mass
         self.mass_matrix = sparse.diags(mass).tocsc()
-        self.n = len(mass)
+        self.count = count
         self.band_size = band_size
-        self.block_size = block_size
-        self.max_dimension = 3 * band_size + 2 * block_size
-        self.tolerance = tolerance
+        self.progress = progress
+        self.n = len(mass)
         self.rng = np.random.default_rng(20080617)
         # Weyl's law for a surface: N(λ) ≈ area · λ / 4π, the first guess of eigenvalue density.
         self.density = mass.sum() / (4.0 * math.pi)
         self.value_floor = 1.0 / self.density        # ~ the spacing of the first eigenvalues
         self.solves = 0
-        self.iterations = 0
+        self.window = (-np.inf, np.inf)
         self.initial = None
         if initial is not None:
-            vectors = np.asarray(initial, dtype=np.float64)
-            norms = np.sqrt(np.einsum("ij,i,ij->j", vectors, mass, vectors))
-            self.initial = vectors / np.where(norms > 0, norms, 1.0)
+            self._prepare_warm_start(initial)
 
-    def factorise(self, shift: float) -> _ShiftedFactor:
-        # A nudge of ~1 % of the eigenvalue spacing keeps σ off an eigenvalue.
-        return _factorise(self.stiffness_csc, self.mass_matrix, shift, nudge=0.013 / self.density)
+    def _prepare_warm_start(self, initial: np.ndarray) -> None:
+        """Order the previous basis by its Rayleigh quotients on the new mesh."""
+        vectors = np.asarray(initial, dtype=np.float64)
+        norms = np.einsum("ij,i,ij->j", vectors, self.mass, vectors)
+        quotients = np.einsum("ij,ij->j", vectors, self.stiffness @ vectors) / norms
+        order = np.argsort(quotients)
+        self.initial = vectors[:, order] / np.sqrt(norms[order])
+        self.initial_quotients = quotients[order]
 
-    def shifted_solve(self, factor: _ShiftedFactor, block: np.ndarray) -> np.ndarray:
-        """(L − σD)⁻¹ block, one column at a time (SuperLU's multi-column solve is slower per
-        column than single solves, measured: docs/benchmarks.md)."""
-        block = np.asfortranarray(block)
-        out = np.empty_like(block, order="F")
-        for column in range(block.shape[1]):
-            out[:, column] = factor.solve(block[:, column])
-        self.solves += block.shape[1]
-        return out
+    def lanczos(self, factor: _ShiftedFactor, k: int, deflate: np.ndarray | None = None):
+        """The ``k`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
+        factorisation, ascending. With ``deflate`` (D-orthonormal columns U) the operator is
+        P S P with P = I − U Uᵀ D, so pairs already found are not found again."""
+        k = min(k, self.n - 2 - (0 if deflate is None else deflate.shape[1]))
+        mass = self.mass
 
-    def random_block(self, width: int) -> np.ndarray:
-        return self.rng.standard_normal((self.n, width))
-
-    def band(self, factor: _ShiftedFactor, lower: float, needed: int, deflate: list[np.ndarray],
-             start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The ``needed`` eigenpairs in [lower, σ) that are D-orthogonal to ``deflate``.
-
-        Block Davidson with the shift-invert correction t = (L − σD)⁻¹ r for the residual
-        r = L x − θ D x of each unconverged Ritz pair (θ, x) nearest σ, Rayleigh–Ritz on
-        (L, D) over the search space V (Vᵀ D V = I, D-orthogonal to ``deflate``), hard locking
-        of converged pairs. Pairs above σ that converge on the way are returned too (they start
-        the next band's window); so are the unconverged Ritz vectors above σ (its start).
-        """
-        shift, mass, block_size = factor.shift, self.mass, self.block_size
-        V = _orthonormalise(start, deflate, mass) if start.shape[1] else start
-        if V.shape[1] < block_size:
-            V = np.hstack([V, _orthonormalise(self.random_block(block_size - V.shape[1]), deflate + [V], mass)])
-        LV = self.stiffness @ V
-        T = V.T @ LV
-        carry = V[:, :0]
-        stalled = 0
-        for iteration in range(MAX_ITERATIONS):
-            self.iterations += 1
-            theta, Z = np.linalg.eigh(0.5 * (T + T.T))
-            valid = np.flatnonzero(theta >= lower)
-            order = valid[np.argsort(np.abs(theta[valid] - shift), kind="stable")]
-            check = order[: 2 * block_size]
-            X = V @ Z[:, check]
-            R = LV @ Z[:, check] - mass[:, None] * X * theta[check]
-            residuals = np.sqrt(np.einsum("ij,i,ij->j", R, self.inverse_mass, R))
-            converged = residuals <= self.tolerance * np.maximum(np.abs(theta[check]), self.value_floor)
-            if np.any(converged):
-                locked_values.append(theta[check][converged])
-                locked_vectors.append(X[:, converged])
-                found_below += int(np.count_nonzero(theta[check][converged] < shift))
-                stalled = 0
-            else:
-                stalled += 1
-            if found_below > needed:
-                raise np.linalg.LinAlgError(
-                    f"{found_below} eigenpairs found in a window of {needed} below sigma={shift:g}")
-            # Search space for the next iteration: the unlocked Ritz vectors nearest σ.
-            locked = np.zeros(len(theta), dtype=bool)
-            locked[check[converged]] = True
-            keep = order[~locked[order]]
-            if found_below == needed:
-                above = keep[theta[keep] > shift][: self.max_dimension // 2]
-                carry = V @ Z[:, above]
-                break
-            keep = keep[: self.max_dimension - block_size]
-            pending = np.flatnonzero(~converged)[:block_size]
-            corrections = self.shifted_solve(factor, R[:, pending])
-            del X, R
-            V = V @ Z[:, keep]
-            LV = LV @ Z[:, keep]
-            theta_keep = theta[keep]
-            if stalled >= 8:    # a direction missing from the search space: add fresh ones
-                corrections = np.hstack([corrections, self.random_block(4)])
-                stalled = 0
-            E = _orthonormalise(corrections, deflate + locked_vectors + [V], mass)
-            if E.shape[1] == 0:
-                E = _orthonormalise(self.random_block(block_size), deflate + locked_vectors + [V], mass)
-            LE = self.stiffness @ E
-            cross = V.T @ LE
-            T = np.block([[np.diag(theta_keep), cross], [cross.T, E.T @ LE]])
-            V = np.hstack([V, E])
-            LV = np.hstack([LV, LE])
+        if deflate is None:
+            def solve(y: np.ndarray) -> np.ndarray:
+                self.solves += 1
+                return factor.solve(y)
         else:
-            raise np.linalg.LinAlgError(f"band at sigma={shift:g} did not converge")
-        values = np.concatenate(locked_values) if locked_values else np.empty(0)
-        vectors = np.hstack(locked_vectors) if locked_vectors else np.empty((self.n, 0))
-        return values, vectors, carry
+            mass_deflate = mass[:, None] * deflate
 
-    def krylov_band(self, factor: _ShiftedFactor, lower: float, needed: int, deflate: list[np.ndarray],
-                    start: np.ndarray, above: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The ``needed`` eigenpairs in [lower, σ) that are D-orthogonal to ``deflate`` (and at
-        least ``above`` converged pairs above σ).
+            def solve(y: np.ndarray) -> np.ndarray:  # ARPACK passes y = D x
+                self.solves += 1
+                z = factor.solve(y - mass_deflate @ (deflate.T @ y))
+                return z - deflate @ (mass_deflate.T @ z)
 
-        Block Lanczos on S = (L − σD)⁻¹ D in the D-inner product with full reorthogonalisation
-        (block classical Gram–Schmidt twice, level-3 BLAS): V spans the block Krylov space,
-        H = Vᵀ D S V is its projection. Ritz pairs (τ, V y) of H give eigenvalues λ = σ + 1/τ;
-        the Krylov relation S V = V H + V₊ H₊ bounds ‖S x − τ x‖_D by ‖H₊ y‖ at no cost, and
-        a pair counts only after its true residual ‖L x − θ D x‖_{D⁻¹} (θ its Rayleigh quotient)
-        passes. Pairs above σ that converge on the way are returned too (they fill the bottom of
-        the next band's window), and so are a block of unconverged Ritz vectors above σ (its
-        start). When V is full, the run restarts thickly (Krylov–Schur) from the Ritz vectors
-        nearest σ.
-        """
-        shift, mass, block_size = factor.shift, self.mass, self.block_size
-        capacity = self.max_dimension
-        estimate_tolerance = self.tolerance
-        basis = np.empty((self.n, capacity))
-        projected = np.zeros((capacity, capacity))
-        against = [basis for basis in deflate if basis.shape[1]]
+        inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
+        start = self.rng.standard_normal(self.n)
+        if self.initial is not None and deflate is None:
+            # Warm start: the previous basis's vectors whose Rayleigh quotients fall in the
+            # band, summed, start the Lanczos run (plus a little noise so nothing is missed).
+            low, high = self.window
+            inside = (self.initial_quotients >= low) & (self.initial_quotients <= high)
+            if np.any(inside):
+                start = self.initial[:, inside].sum(axis=1) + 1e-3 * start / np.sqrt(self.n)
+        if deflate is not None:
+            start -= deflate @ (deflate.T @ (mass * start))
+        values, vectors = scipy.sparse.linalg.eigsh(
+            self.stiffness, k=k, M=self.mass_matrix, sigma=factor.shift, which="LM", OPinv=inverse, v0=start,
+        )
+        order = np.argsort(values)
+        return values[order], vectors[:, order]
 
-        def begin(block: np.ndarray) -> int:
-            block = _orthonormalise(block, against, mass)
-            if block.shape[1] < block_size:
-                block = np.hstack([block, _orthonormalise(self.random_block(block_size - block.shape[1]),
-                                                          against + [block], mass)])
-            block = block[:, :capacity // 3]
-            basis[:, :block.shape[1]] = block
-            projected[:] = 0.0
-            return block.shape[1]
+    def recover(self, factor: _ShiftedFactor, missing: int, found: list[np.ndarray], lowest: float, spare: int):
+        """Pairs below σ and at or above ``lowest`` that the inertia says exist but were not
+        found (e.g. one copy of an exactly repeated eigenvalue): Lanczos deflated against
+        every vector ``found`` near the band."""
+        values_out, vectors_out = [], []
+        k = missing + max(8, spare)
+        for _ in range(6):
+            deflate = _orthonormalise(np.hstack(found + vectors_out), None, self.mass)
+            values, vectors = self.lanczos(factor, k, deflate)
+            pick = np.flatnonzero((values < factor.shift) & (values >= lowest))[:missing]
+            if len(pick):
+                values_out.append(values[pick])
+                vectors_out.append(vectors[:, pick])
+                missing -= len(pick)
+            if missing == 0:
+                log.debug("recovered missing pairs at sigma=%g", factor.shift)
+                return np.concatenate(values_out), np.hstack(vectors_out)
+            k *= 2
+        raise np.linalg.LinAlgError(f"{missing} eigenpairs below sigma={factor.shift:g} not found")
 
-        width = begin(start)
-        applied = checked = restarts = 0
-        for iteration in range(MAX_ITERATIONS):
-            self.iterations += 1
-            V = basis[:, :width]
-            W = self.shifted_solve(factor, mass[:, None] * basis[:, applied:width])
-            if not np.all(np.isfinite(W)):
-                raise np.linalg.LinAlgError(f"shifted solve at sigma={shift:g} overflowed")
-            coefficients = np.zeros((width, width - applied))
-            size_before = float(np.sqrt(np.einsum("ij,i,ij->j", W, mass, W)).max())
-            for _ in range(2):
-                step = V.T @ (mass[:, None] * W)
-                W -= V @ step
-                coefficients += step
-                for other in against:
-                    W -= other @ (other.T @ (mass[:, None] * W))
-            projected[:width, applied:width] = coefficients
-            # The new block: W = Q C by SVQB in the D-inner product; C continues the projection.
-            gram = W.T @ (mass[:, None] * W)
-            values, rotation = np.linalg.eigh(0.5 * (gram + gram.T))
-            # Directions that shrank below 1e-10 of the solves' size are round-off: dropped.
-            keep = values > (1e-10 * size_before) ** 2
-            new = W @ (rotation[:, keep] / np.sqrt(values[keep]))
-            continuation = (rotation[:, keep] * np.sqrt(values[keep])).T
-            del W
-            columns_before, applied = width, width
-            basis[:, width:width + new.shape[1]] = new
-            projected[width:width + new.shape[1], applied - coefficients.shape[1]:applied] = continuation
-            width += new.shape[1]
-            # Full when the next block (no wider than this one) would not fit: the Krylov
-            # relation must never be cut.
-            full = width + new.shape[1] > capacity or new.shape[1] == 0
-            if not full and width - checked < CHECK_EVERY:
-                continue
-            checked = width
-            # Rayleigh–Ritz on the part of the space S has been applied to.
-            H = projected[:applied, :applied]
-            tau, Y = np.linalg.eigh(0.5 * (H + H.T))
-            with np.errstate(divide="ignore"):
-                estimates = shift + 1.0 / tau
-            bound = np.linalg.norm(projected[applied:width, :applied] @ Y, axis=0) / np.maximum(np.abs(tau), 1e-300)
-            candidate = (np.abs(tau) > 0) & (estimates >= lower)
-            settled = candidate & (bound <= estimate_tolerance)
-            window_settled = int(np.count_nonzero(settled & (estimates < shift)))
-            if (window_settled < needed or np.count_nonzero(settled) - window_settled < above) and not full:
-                continue
-            # Verify the settled pairs by their true residuals.
-            chosen = np.flatnonzero(settled)
-            X = basis[:, :applied] @ Y[:, chosen]
-            LX = self.stiffness @ X
-            # Rayleigh–Ritz on (L, D) inside the settled span: S's Ritz vectors of pairs close
-            # together near σ can mix at the level of the solves' round-off (measured).
-            small = X.T @ LX
-            quotients, rotation = np.linalg.eigh(0.5 * (small + small.T))
-            X, LX = X @ rotation, LX @ rotation
-            residual = LX - mass[:, None] * X * quotients
-            residuals = np.sqrt(np.einsum("ij,i,ij->j", residual, self.inverse_mass, residual))
-            del LX, residual
-            good = (residuals <= self.tolerance * np.maximum(np.abs(quotients), self.value_floor)) & (quotients >= lower)
-            log.debug("verify: %d settled, %d good, window good %d, worst window residual %.1e", len(chosen), np.count_nonzero(good), np.count_nonzero(good & (quotients < shift)), np.max((residuals / np.maximum(np.abs(quotients), self.value_floor))[quotients < shift], initial=0))
-            window_good = int(np.count_nonzero(good & (quotients < shift)))
-            if window_good > needed:
-                raise np.linalg.LinAlgError(
-                    f"{window_good} eigenpairs found in a window of {needed} below sigma={shift:g}")
-            if window_good == needed and np.count_nonzero(good) - window_good >= above:
-                values, vectors = quotients[good], X[:, good]
-                rest = np.flatnonzero(candidate & ~settled & (estimates > shift))
-                rest = rest[np.argsort(estimates[rest])][:block_size]
-                carry = basis[:, :applied] @ Y[:, rest]
-                break
-            if full:
-                restarts += 1
-                if restarts > MAX_RESTARTS:
-                    raise np.linalg.LinAlgError(f"band at sigma={shift:g} did not converge in {MAX_RESTARTS} restarts")
-                # Thick restart (Krylov–Schur): keep the Ritz vectors nearest σ and the block not
-                # yet multiplied by S; S X = X diag(τ) + V₊ H₊ Y keeps the projection exact.
-                keep = np.flatnonzero(candidate)
-                keep = keep[np.argsort(np.abs(estimates[keep] - shift), kind="stable")]
-                keep = keep[: max(capacity - 2 * (width - applied), 0)]
-                pending = basis[:, applied:width].copy()
-                tail = projected[applied:width, :applied] @ Y[:, keep]
-                if not pending.shape[1]:   # the space was invariant: continue with fresh directions
-                    pending = _orthonormalise(self.random_block(block_size), against + [basis[:, :applied]], mass)
-                    tail = np.zeros((pending.shape[1], len(keep)))
-                kept = len(keep)
-                basis[:, :kept] = basis[:, :applied] @ Y[:, keep]
-                basis[:, kept:kept + pending.shape[1]] = pending
-                projected[:] = 0.0
-                projected[:kept, :kept] = np.diag(tau[keep])
-                projected[kept:kept + pending.shape[1], :kept] = tail
-                applied, width = kept, kept + pending.shape[1]
-                checked = applied
-                del pending
-                log.debug("band at sigma=%g restarted keeping %d Ritz vectors", shift, kept)
-                continue
-            estimate_tolerance = max(0.1 * estimate_tolerance, 1e-14)
-        else:
-            raise np.linalg.LinAlgError(f"band at sigma={shift:g} did not converge")
-        return values, vectors, carry
-
-    def next_shift(self, lower: float, lower_below: int, pool: np.ndarray, remaining: int) -> float:
-        """Where to put the next band's shift. The pairs already converged above ``lower``
-        (``pool``, ascending) fill the bottom of its window; the shift goes about half a band
-        above them (Weyl's law, with the density observed so far), or, when the pool holds all
-        that remain, in the first gap above the last one needed."""
-        half = max(self.band_size // 2, 1)
-        if not np.isfinite(lower):
-            return -0.5 * self.value_floor
-        if lower_below > 0 and lower > 0:
-            self.density = lower_below / lower     # N(λ) ∝ λ on a surface
-        if len(pool) >= remaining:
-            for index in range(remaining - 1, len(pool) - 1):
-                if pool[index + 1] - pool[index] > 1e-6 * abs(pool[index + 1]):
-                    return 0.5 * (pool[index] + pool[index + 1])
-            return pool[-1] + 0.5 / self.density
-        top = pool[-1] if len(pool) else max(lower, 0.0)
-        extra = min(half, remaining - len(pool)) + 2
-        return top + extra / self.density
+    def lanczos_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, wanted: int,
+                     previous: np.ndarray | None, previous_lower: float):
+        """A band by ARPACK: the ``wanted`` pairs nearest σ; accept those in [lower, σ) (all of
+        them: their number is known from the inertia, and pairs missed here or in the previous
+        band's run above its shift are recovered by deflation) and those above σ up to a wide
+        gap below the outermost one found."""
+        shift = factor.shift
+        target_below = factor.below - accepted_below
+        values, vectors = self.lanczos(factor, max(wanted, target_below + 8))
+        keep = values >= lower
+        values, vectors = values[keep], vectors[:, keep]
+        below = int(np.count_nonzero(values < shift))
+        if below > target_below:
+            raise np.linalg.LinAlgError(f"band at sigma={shift:g} found {below} pairs, {target_below} exist")
+        if below < target_below:
+            found = [vectors] + ([previous] if previous is not None else [])
+            extra_values, extra_vectors = self.recover(
+                factor, target_below - below, found, previous_lower, spare=len(values) - below)
+            values = np.concatenate([extra_values, values])
+            vectors = np.hstack([extra_vectors, vectors])
+            order = np.argsort(values)
+            values, vectors = values[order], vectors[:, order]
+            below = target_below
+            below = int(np.count_nonzero(values < shift))
+        # The outermost pairs found above σ may be part of a cluster that continues beyond the
+        # window: cut in the widest gap of the upper half of the run above σ.
+        cut, upper = _band_cut(values, below, shift)
+        return values[:cut], vectors[:, :cut], upper
 
 
 def _spectrum_slicing(
@@ -469,72 +331,66 @@ def _spectrum_slicing(
     initial: np.ndarray | None,
     progress: Progress | None,
     band_size: int,
-    block_size: int = BLOCK_SIZE,
-    tolerance: float = RESIDUAL_TOLERANCE,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Bands from the bottom of the spectrum up until ``count`` pairs are certified.
+    """Bands from the bottom of the spectrum up until ``count`` pairs are accepted.
 
-    Band j factorises L − σ_j D; its pivots say exactly how many eigenvalues lie below σ_j
-    (Sylvester), so the window [σ_{j−1}, σ_j) holds a known number of pairs. Those already
-    converged above σ_{j−1} in band j−1 count; the rest are found by a block Davidson run with
-    that factorisation, D-orthogonal to every pair found near the window. A window is accepted
-    only when its count matches the inertia exactly: no pair missed, none duplicated, also in
-    clusters of (nearly) repeated eigenvalues cut by a shift.
+    Band j factorises L − σ_j D with σ_j a quarter band above its lower edge (the previous
+    band's upper edge), so the pairs below σ_j, whose number the inertia gives exactly, are
+    near σ_j and converge first; it accepts those plus the converged run above σ_j, cut in a
+    wide spectral gap. The next band's inertia verifies that run; the last one is verified by
+    one more inertia count at its upper edge.
     """
-    solver = _SliceSolver(stiffness, mass, band_size, block_size, tolerance, initial)
+    solver = _BandSolver(stiffness, mass, count, band_size, initial, progress)
     n = len(mass)
-    values_out = np.empty(count)
-    vectors_out = np.empty((n, count))
-    certified = 0
-    lower, lower_below = -np.inf, 0
-    pool_values = np.empty(0)
-    pool_vectors = np.empty((n, 0))
-    carry = np.empty((n, 0))
-    while certified < count:
-        remaining = count - certified
-        shift = solver.next_shift(lower, lower_below, pool_values, remaining)
-        factor = solver.factorise(shift)
-        shift = factor.shift
-        in_window = pool_values < shift
-        needed = factor.below - lower_below - int(np.count_nonzero(in_window))
-        if needed < 0:
-            raise np.linalg.LinAlgError(f"{factor.below} eigenvalues below sigma={shift:g}, more found")
-        # Deflate against every pair found within one window's width below: far ones are damped
-        # by the shift-invert and, being below the window, never accepted again.
-        reach = lower - (shift - lower) if np.isfinite(lower) else -np.inf
-        first = int(np.searchsorted(values_out[:certified], reach))
-        deflate = [vectors_out[:, first:certified], pool_vectors]
-        start = carry
-        if solver.initial is not None:
-            # Warm start: the previous basis's vectors for this window, mixed into one small
-            # block (a wide start block would cost a solve per column per Krylov step).
-            warm = solver.initial[:, lower_below + len(pool_values): factor.below + band_size // 2]
-            if warm.shape[1]:
-                start = np.hstack([warm @ solver.rng.standard_normal((warm.shape[1], block_size)), carry])
-        if certified == 0 and not len(pool_values):
-            # First band: σ < 0 has nothing below; the run converges the bottom of the spectrum
-            # one-sidedly (fastest), and the next band's inertia certifies it.
-            values, vectors, carry = solver.krylov_band(factor, lower, 0, deflate, start,
-                                                        above=min(count, max(band_size // 2, 1)))
-        elif needed:
-            values, vectors, carry = solver.krylov_band(factor, lower, needed, deflate, start)
+    values_found: list[np.ndarray] = []
+    vectors_found: list[np.ndarray] = []
+    done = 0
+    lower = previous_lower = -np.inf
+    band_index = 0
+    while done < count:
+        remaining = count - done
+        wanted = min(band_size, remaining + 4)
+        if band_index == 0:
+            # σ below 0 (L is only semi-definite): nothing lies below it.
+            shift = -0.5 * solver.value_floor
+            reach = shift + 1.1 * wanted / solver.density
         else:
-            values, vectors = np.empty(0), np.empty((n, 0))
-        all_values = np.concatenate([pool_values, values])
-        all_vectors = np.hstack([pool_vectors, vectors])
-        window = np.flatnonzero(all_values < shift)
-        window = window[np.argsort(all_values[window], kind="stable")]
-        take = min(len(window), count - certified)
-        values_out[certified:certified + take] = all_values[window[:take]]
-        vectors_out[:, certified:certified + take] = all_vectors[:, window[:take]]
-        certified += take
-        rest = np.flatnonzero(all_values >= shift)
-        rest = rest[np.argsort(all_values[rest], kind="stable")]
-        pool_values, pool_vectors = all_values[rest], all_vectors[:, rest]
-        del all_vectors
-        log.debug("band sigma=%.6g below=%d certified=%d pool=%d solves=%d iterations=%d", shift,
-                  factor.below, certified, len(pool_values), solver.solves, solver.iterations)
-        lower, lower_below = shift, factor.below
+            shift = lower + 0.35 * wanted / solver.density
+            reach = lower + 1.1 * wanted / solver.density
+        factor = _factorise(solver.stiffness_csc, solver.mass_matrix, shift)
+        solver.window = (lower if np.isfinite(lower) else -np.inf, reach)
+        values, vectors, upper = solver.lanczos_band(
+            factor, lower, done, wanted, vectors_found[-1] if vectors_found else None, previous_lower)
+        log.debug("band %d: sigma=%.6g below=%d accepted=%d solves=%d", band_index, shift,
+                  factor.below, len(values), solver.solves)
+        if len(values) > 4:
+            # Observed density over this band sharpens the next shift.
+            start = max(lower, 0.0) if np.isfinite(lower) else 0.0
+            solver.density = len(values) / max(upper - start, 1e-300)
+        values_found.append(values)
+        vectors_found.append(vectors)
+        done += len(values)
+        previous_lower, lower = lower, upper
+        band_index += 1
         if progress is not None:
-            progress(certified, count)
-    return values_out, vectors_out
+            progress(min(done, count), count)
+    # The last band's run above its shift is verified by the inertia at its upper edge.
+    top = _factorise(solver.stiffness_csc, solver.mass_matrix, lower)
+    if top.below < done:
+        raise np.linalg.LinAlgError(f"{top.below} eigenvalues below {lower:g}, {done} accepted")
+    if top.below > done:
+        values, vectors = solver.recover(top, top.below - done, [vectors_found[-1]], previous_lower,
+                                         spare=vectors_found[-1].shape[1])
+        values_found.append(values)
+        vectors_found.append(vectors)
+        done += len(values)
+    eigenvalues = np.concatenate(values_found)
+    order = np.argsort(eigenvalues, kind="stable")[:count]
+    eigenvectors = np.empty((n, count))
+    column = 0
+    for vectors in vectors_found:
+        width = vectors.shape[1]
+        chosen = order[(order >= column) & (order < column + width)]
+        eigenvectors[:, np.flatnonzero((order >= column) & (order < column + width))] = vectors[:, chosen - column]
+        column += width
+    return eigenvalues[order], eigenvectors
