@@ -315,10 +315,11 @@ POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over whic
 
 def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
     """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
-    when they already agree (to 1e-12)."""
+    when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a limb
+    turned upside down is not a lean to straighten)."""
     start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
     axis, cosine = np.cross(start, end), float(start @ end)
-    if np.linalg.norm(axis) < 1e-12 and cosine > 0:
+    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
         return None
     cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
@@ -339,11 +340,12 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     from .measures import LIMB_REGIONS, carry_fields, limb_sections
 
     vertices = moved.vertices.copy()
+    regions = [region for region in LIMB_REGIONS if reference.has_region(region) and reference.labels is not None
+               and reference.region_mask(region).any()]
+    limbs = {region: limb_sections(reference, region) for region in regions}   # before carrying: the same limbs
     carried = carry_fields(reference, moved.with_vertices(moved.vertices))
-    for region in LIMB_REGIONS:
-        if not reference.has_region(region) or reference.labels is None or not reference.region_mask(region).any():
-            continue
-        for before, after in zip(limb_sections(reference, region), limb_sections(carried, region)):
+    for region in regions:
+        for before, after in zip(limbs[region], limb_sections(carried, region)):
             if not before.sections:
                 continue
             rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
