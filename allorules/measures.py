@@ -206,7 +206,7 @@ def carry_fields(reference: Body, body: Body) -> Body:
     re-measured by interpolation (:meth:`Loop.moved`) with no re-extraction; the skeletons keep
     their nodes and joins. The torso stays cut by planes across its axis (a tape measure, not a
     material curve) but the chest keeps the reference's candidate sections (by their area
-    quantile), so heart girth does not jump when a section would cross the forelimbs' limit.
+    quantile), and the section at the forelimbs' limit follows the limit (see :func:`chest_girth`).
     Every measure is then a continuous function of the vertices. Meant for an optimiser that
     measures many trial deformations of one body. Returns ``body``.
     """
