@@ -20,6 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
 
 from .body import Body
 from .errors import MeasurementError
@@ -38,7 +40,7 @@ from .sections import (
     submesh,
 )
 
-from .preparation import cap_holes, hole_caps
+from .preparation import HoleCaps, boundary_edges, cap_holes, hole_caps
 
 LIMB_REGIONS = ("forelimbs", "hindlimbs")
 CHEST_LIMIT_MARGIN = 0.01   # heart girth's last candidate: this share of the chest's length behind the forelimbs
@@ -124,13 +126,31 @@ def region_mass(body: Body, region: str) -> float:
 
 @dataclass
 class RegionPart:
-    """One connected piece of a region as a mesh of its own (e.g. one leg of ``forelimbs``)."""
+    """One connected piece of a region as a mesh of its own (e.g. one leg of ``forelimbs``).
+
+    ``caps`` closes the part's *holes*, the boundary loops that are holes of the body's own
+    surface (an open hoof sole), as opposed to its *openings*, where it was cut from the rest of
+    the body: fields and skeletons are taken on the part so closed (:meth:`closed`), as volumes
+    are; a hole is not where a limb joins the body, and a limb does not end at it.
+    """
 
     region: str
     vertices: np.ndarray
     faces: np.ndarray
     vertex_index: np.ndarray   # body vertex of each part vertex
-    area: float
+    area: float                # of the part's own faces (caps not included)
+    caps: HoleCaps | None = None
+
+    def closed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The part with its holes capped: its vertices and then one per hole (the hole's
+        centroid), its faces and then the caps' fans."""
+        return (self.vertices, self.faces) if self.caps is None else self.caps.apply(self.vertices)
+
+    def moved(self, body_vertices: np.ndarray) -> "RegionPart":
+        """The same part (same faces, same caps) cut from a moved copy of its body."""
+        vertices = np.asarray(body_vertices)[self.vertex_index]
+        return RegionPart(self.region, vertices, self.faces, self.vertex_index,
+                          float(face_areas(vertices, self.faces).sum()), self.caps)
 
 
 def _region_faces(body: Body, region: str) -> np.ndarray:
@@ -145,20 +165,66 @@ def _region_faces(body: Body, region: str) -> np.ndarray:
     return selection
 
 
+def _edge_keys(edges: np.ndarray, vertex_count: int) -> np.ndarray:
+    """One integer per undirected edge (a, b)."""
+    return np.minimum(edges[:, 0], edges[:, 1]) * vertex_count + np.maximum(edges[:, 0], edges[:, 1])
+
+
+def _body_hole_edges(body: Body) -> np.ndarray:
+    """Sorted keys (:func:`_edge_keys`) of the body surface's own boundary edges (its holes)."""
+    key = "measures.body-hole-edges"
+    if key not in body.cache:
+        body.cache[key] = np.unique(_edge_keys(boundary_edges(body.faces), len(body.vertices)))
+    return body.cache[key]
+
+
+def part_hole_caps(faces: np.ndarray, vertex_index: np.ndarray, body_hole_edges: np.ndarray, body_vertex_count: int) -> HoleCaps:
+    """The plan that caps those boundary loops of a part (local ``faces``) whose every edge is a
+    boundary edge of the body too (``body_hole_edges``, :func:`_edge_keys` of body vertices):
+    holes of the surface, not openings cut by the labels. A loop that is partly a cut stays open,
+    and so does every loop of a part that has no cut at all (a whole open tube labelled as one
+    region: its holes are where it ends)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    count = len(vertex_index)
+    edges = boundary_edges(faces)
+    if len(edges) == 0:
+        return HoleCaps(count, faces, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+    nodes, local = np.unique(edges, return_inverse=True)
+    local = local.reshape(-1, 2)
+    graph = sparse.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(nodes),) * 2)
+    loop_count, loop_of_node = csgraph.connected_components(graph, directed=False)
+    on_body_boundary = np.isin(_edge_keys(np.asarray(vertex_index)[edges], body_vertex_count), body_hole_edges)
+    edge_loop = loop_of_node[local[:, 0]]
+    is_hole = np.ones(loop_count, dtype=bool)
+    np.logical_and.at(is_hole, edge_loop, on_body_boundary)
+    if is_hole.all():   # no cut at all (the part is a whole piece of the body): its holes are its ends
+        is_hole[:] = False
+    hole_number = np.cumsum(is_hole) - 1                     # holes renumbered 0 … k−1
+    kept_nodes = is_hole[loop_of_node]
+    kept_edges = is_hole[edge_loop]
+    # Each hole edge (a, b), as its face walks it, gets the cap triangle (b, a, centroid) (cap_holes).
+    caps = np.column_stack([edges[kept_edges, 1], edges[kept_edges, 0], count + hole_number[edge_loop[kept_edges]]])
+    return HoleCaps(count, np.vstack([faces, caps]), nodes[kept_nodes], hole_number[loop_of_node[kept_nodes]], int(is_hole.sum()))
+
+
 def region_parts(body: Body, region: str) -> list[RegionPart]:
     """Connected parts of a region, largest first, without label noise.
 
     Parts smaller than ``MINIMUM_PART_SHARE`` of the largest one's area are dropped. A paired
     region (forelimbs, hindlimbs) keeps all remaining parts; any other region its largest part.
+    Each part knows how to cap its holes (:class:`RegionPart`).
     """
     key = f"measures.parts:{region}"
     if key in body.cache:
         return body.cache[key]
     faces = body.faces[_region_faces(body, region)]
+    hole_edges = _body_hole_edges(body)
     parts = []
     for face_index in connected_parts(faces):
         vertices, local_faces, vertex_index = submesh(body.vertices, faces, face_index)
-        parts.append(RegionPart(region, vertices, local_faces, vertex_index, float(face_areas(vertices, local_faces).sum())))
+        caps = part_hole_caps(local_faces, vertex_index, hole_edges, len(body.vertices))
+        parts.append(RegionPart(region, vertices, local_faces, vertex_index,
+                                float(face_areas(vertices, local_faces).sum()), caps if caps.loop_count else None))
     parts.sort(key=lambda part: -part.area)
     parts = [part for part in parts if part.area >= MINIMUM_PART_SHARE * parts[0].area]
     if region not in PAIRED_REGIONS:
@@ -178,22 +244,30 @@ def _part_field(part: RegionPart) -> np.ndarray:
     """
     if len(part.vertices) < 4:
         raise MeasurementError(f"a part of region {part.region!r} has only {len(part.vertices)} vertices; it is too small to measure")
-    openings = sorted(boundary_loops(part.vertices, part.faces), key=lambda loop: -loop.girth)
+    vertices, faces = part.closed()
+    openings = sorted(boundary_loops(vertices, faces), key=lambda loop: -loop.girth)
     if (part.region not in LIMB_REGIONS and len(openings) >= 2
             and openings[1].girth >= SECOND_OPENING_SHARE * openings[0].girth):
-        return harmonic_field(part.vertices, part.faces, openings[0].vertex_ids, openings[1].vertex_ids)
-    field = fiedler_vector(part.vertices, part.faces)
+        return harmonic_field(vertices, faces, openings[0].vertex_ids, openings[1].vertex_ids)
+    field = fiedler_vector(vertices, faces)
     if openings and field[openings[0].vertex_ids].mean() > np.median(field):
         field = -field
     return field
 
 
-def part_fields(body: Body, region: str) -> list[np.ndarray]:
-    """The field along each part of a region (its own Fiedler vector, junction → tip), cached."""
+def _closed_fields(body: Body, region: str) -> list[np.ndarray]:
+    """The field along each part on the part with its holes capped (one value per vertex of
+    :meth:`RegionPart.closed`), cached; topology, so :func:`carry_fields` carries it."""
     key = f"measures.fields:{region}"
     if key not in body.cache:
         body.cache[key] = [_part_field(part) for part in region_parts(body, region)]
     return body.cache[key]
+
+
+def part_fields(body: Body, region: str) -> list[np.ndarray]:
+    """The field along each part of a region (its own Fiedler vector, junction → tip), one value
+    per part vertex (taken on the part with its holes capped)."""
+    return [field[:len(part.vertices)] for field, part in zip(_closed_fields(body, region), region_parts(body, region))]
 
 
 def carry_fields(reference: Body, body: Body) -> Body:
@@ -218,11 +292,7 @@ def carry_fields(reference: Body, body: Body) -> Body:
         raise ValueError("carry_fields needs two bodies with the same labels")
     for key, value in reference.cache.items():
         if key.startswith("measures.parts:"):
-            body.cache[key] = [
-                RegionPart(part.region, body.vertices[part.vertex_index], part.faces, part.vertex_index,
-                           float(face_areas(body.vertices[part.vertex_index], part.faces).sum()))
-                for part in value
-            ]
+            body.cache[key] = [part.moved(body.vertices) for part in value]
         elif key.startswith(("measures.fields:", "measures.caps:")):   # topology: the same for both
             body.cache[key] = value
         elif key.startswith(("measures.skeleton:", "measures.limbs:", "measures.chest-candidates")):
@@ -458,11 +528,11 @@ def region_skeleton(body: Body, region: str) -> list[Skeleton]:
     key = f"measures.skeleton:{region}"
     carried = body.cache.get(f"measures.carried.skeleton:{region}")
     if key not in body.cache and carried is not None:   # the reference's skeletons, re-measured
-        body.cache[key] = [part_skeleton.moved(part.vertices) for part_skeleton, part in zip(carried, region_parts(body, region))]
+        body.cache[key] = [part_skeleton.moved(part.closed()[0]) for part_skeleton, part in zip(carried, region_parts(body, region))]
     if key not in body.cache:
         skeletons = []
-        for part, field in zip(region_parts(body, region), part_fields(body, region)):
-            skeletons.append(skeleton(part.vertices, part.faces, field, count=SECTION_COUNT))
+        for part, field in zip(region_parts(body, region), _closed_fields(body, region)):
+            skeletons.append(skeleton(*part.closed(), field, count=SECTION_COUNT))
         body.cache[key] = skeletons
     return body.cache[key]
 
