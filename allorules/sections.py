@@ -364,8 +364,10 @@ class Skeleton:
     """Skeleton graph: nodes are points, edges weighted by the distance between them.
 
     ``kinds[i]`` is ``"section"`` (centroid of ``loops[i]``, an isocontour), ``"boundary"``
-    (centroid of ``loops[i]``, an open boundary of the mesh) or ``"tip"`` (a vertex where the
-    field is extreme: the end of a limb, where isocontours shrink to a point).
+    (centroid of ``loops[i]``, an open boundary of the mesh) or ``"tip"`` (the end of a limb,
+    where isocontours shrink to a point: :func:`end_point` beyond the last loop, ``tip_anchors[i]``,
+    as far as the surface beyond it, ``tip_regions[i]``, reaches; without such a loop, the vertex
+    ``tip_vertices[i]`` where the field is extreme).
     """
 
     points: np.ndarray                   # (N, 3)
@@ -374,6 +376,8 @@ class Skeleton:
     loops: list[Loop | None]
     levels: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0))
     tip_vertices: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # mesh vertex per node, −1 if not a tip
+    tip_anchors: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # per node: the loop node a tip lies beyond, −1 if none
+    tip_regions: list[np.ndarray | None] = dataclass_field(default_factory=list)                    # per node: a tip's end-band vertices
 
     @property
     def diameter(self) -> float:
@@ -388,12 +392,37 @@ class Skeleton:
         """
         vertices = np.asarray(vertices, dtype=np.float64)
         loops = [None if loop is None else loop.moved(vertices) for loop in self.loops]
-        points = np.asarray([vertices[tip] if loop is None else loop.centroid
-                             for loop, tip in zip(loops, self.tip_vertices.tolist())], dtype=np.float64).reshape(-1, 3)
+        points = []
+        for node, loop in enumerate(loops):
+            if loop is not None:
+                points.append(loop.centroid)
+            elif self.tip_anchors[node] >= 0:
+                points.append(end_point(vertices, loops[self.tip_anchors[node]], self.tip_regions[node]))
+            else:
+                points.append(vertices[self.tip_vertices[node]])
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         graph = sparse.triu(self.graph, k=1).tocoo()
         weights = np.maximum(np.linalg.norm(points[graph.row] - points[graph.col], axis=1), 1e-300)
         upper = sparse.coo_matrix((weights, (graph.row, graph.col)), shape=self.graph.shape)
-        return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices)
+        return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices,
+                        self.tip_anchors, self.tip_regions)
+
+
+def end_point(vertices: np.ndarray, anchor: Loop, end_vertices: np.ndarray) -> np.ndarray:
+    """Where a part ends beyond its last cross-section ``anchor``: on the section's axis, as far
+    out as the surface beyond it (``end_vertices``) reaches.
+
+    p = c + n · max_v (v − c)·n, with c the loop's centroid and n its unit normal pointing to the
+    end (to the side where the end vertices lie on the whole). A maximum of continuous functions
+    of the vertices, so it does not jump when a neighbouring vertex becomes the extreme one (the
+    field's extreme vertex, on a blunt toe or a flat sole, does); and it measures how far the end
+    reaches along the part, not across it (the extreme vertex may sit on the rim of a wide sole).
+    """
+    centre, normal = anchor.centroid, anchor.normal
+    offsets = (np.asarray(vertices)[np.asarray(end_vertices)] - centre) @ normal
+    if offsets.sum() < 0:
+        normal, offsets = -normal, -offsets
+    return centre + max(float(offsets.max(initial=0.0)), 0.0) * normal
 
 
 def skeleton_longest_path(graph: sparse.spmatrix) -> tuple[float, list[int]]:
@@ -430,7 +459,10 @@ def skeleton(
     *bands*: connected components of the faces whose field range meets that interval. Nodes:
     every closed isocontour loop (its centroid); every open boundary loop of the mesh (its
     centroid); in each band below the first or above the last level that holds no boundary, the
-    vertex where the field is extreme (a tip). Two nodes are joined when they touch the same band.
+    end point beyond the outermost loop (a tip, :func:`end_point`). Nodes that touch the same band
+    part are joined in the order of their field value (a loop's level, a boundary's mean value,
+    a tip beyond every loop), each level's nodes to the next level's: the skeleton runs through
+    every loop, rather than skipping some where a face happens to span two levels.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -446,6 +478,8 @@ def skeleton(
     kinds: list[str] = []
     node_loops: list[Loop | None] = []
     tip_vertices: list[int] = []
+    tip_anchors: list[int] = []
+    tip_regions: list[np.ndarray | None] = []
     node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
     for level in levels:
         for loop in isocontour_loops(vertices, faces, field, level):
@@ -454,12 +488,24 @@ def skeleton(
             node_loops.append(loop)
             node_faces.append(loop.faces)
             tip_vertices.append(-1)
+            tip_anchors.append(-1)
+            tip_regions.append(None)
     for loop in boundary_loops(vertices, faces):
         points.append(loop.centroid)
         kinds.append("boundary")
         node_loops.append(loop)
         node_faces.append(loop.faces[loop.faces >= 0])
         tip_vertices.append(-1)
+        tip_anchors.append(-1)
+        tip_regions.append(None)
+
+    # Field value of each node so far: a loop's level; an open boundary's mean value. A tip lies
+    # beyond every loop of its end band (tip_value).
+    node_values = [loop.level if kind == "section" else float(field[loop.vertex_ids].mean())
+                   for loop, kind in zip(node_loops, kinds)]
+
+    def tip_value(band: int) -> float:
+        return -np.inf if band == 0 else np.inf
 
     edges: set[tuple[int, int]] = set()
     bounds = np.concatenate([[-np.inf], levels, [np.inf]])
@@ -481,7 +527,10 @@ def skeleton(
                 members.setdefault(int(component[local]), set()).add(node)
         end_band = band == 0 or band == len(bounds) - 2
         if end_band:
-            # A tip: the extreme vertex of each end band part that is not closed off by a boundary.
+            # A tip in each end band part that is not closed off by a boundary: the end point
+            # beyond the part's outermost loop (the longest, if the end level has several), or,
+            # without one, the vertex where the field is extreme.
+            end_level = levels[0] if band == 0 else levels[-1]
             for part in range(component_count):
                 part_nodes = members.get(part, set())
                 if any(kinds[node] == "boundary" for node in part_nodes):
@@ -489,16 +538,36 @@ def skeleton(
                 part_vertices = np.unique(faces[in_band[component == part]])
                 values = field[part_vertices]
                 tip = part_vertices[np.argmin(values) if band == 0 else np.argmax(values)]
-                points.append(vertices[tip])
+                outermost = [node for node in part_nodes if node_loops[node] is not None and kinds[node] == "section"
+                             and node_loops[node].level == end_level]
+                if outermost:
+                    anchor = max(outermost, key=lambda node: node_loops[node].girth)
+                    beyond = part_vertices[values <= end_level] if band == 0 else part_vertices[values >= end_level]
+                    points.append(end_point(vertices, node_loops[anchor], beyond))
+                    tip_anchors.append(anchor)
+                    tip_regions.append(beyond)
+                else:
+                    points.append(vertices[tip])
+                    tip_anchors.append(-1)
+                    tip_regions.append(None)
                 kinds.append("tip")
                 node_loops.append(None)
                 tip_vertices.append(int(tip))
                 members.setdefault(part, set()).add(len(points) - 1)
         for part_nodes in members.values():
-            ordered = sorted(part_nodes)
-            for i, p in enumerate(ordered):
-                for q in ordered[i + 1:]:
-                    edges.add((p, q))
+            # Join the nodes of a band part in the order of their field value, each group (one
+            # level) to the next: a loop that touches the band only through a face spanning two
+            # levels is not a shortcut past the loops between them. Such faces come and go as
+            # the levels slide over the vertices' values, and the shortcuts with them, which
+            # made the diameter jump on nearly identical meshes.
+            groups: dict[float, list[int]] = {}
+            for node in part_nodes:
+                groups.setdefault(node_values[node] if node < len(node_values) else tip_value(band), []).append(node)
+            ordered = [groups[value] for value in sorted(groups)]
+            for lower_group, upper_group in zip(ordered, ordered[1:]):
+                for p in lower_group:
+                    for q in upper_group:
+                        edges.add((min(p, q), max(p, q)))
 
     point_array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if edges:
@@ -510,4 +579,5 @@ def skeleton(
         graph = (graph + graph.T).tocsr()
     else:
         graph = sparse.csr_matrix((len(points), len(points)))
-    return Skeleton(point_array, graph, kinds, node_loops, levels, np.asarray(tip_vertices, dtype=np.int64))
+    return Skeleton(point_array, graph, kinds, node_loops, levels, np.asarray(tip_vertices, dtype=np.int64),
+                    np.asarray(tip_anchors, dtype=np.int64), tip_regions)
