@@ -52,6 +52,11 @@ JUNCTION_SKIP = 0.15
 TIP_SKIP = 0.20
 # Loops per part for sections and skeletons.
 SECTION_COUNT = 40
+# Share of a limb's area at its far end (the foot: a hoof, a wide sole) that a limb's skeleton
+# does not cut into sections: the field along the leg flattens across a sole, where its
+# isocontours wander and split. The skeleton's tip reaches the foot's far end from the last
+# section before it (sections.end_point).
+FOOT_SHARE = 0.1
 # A part whose second-largest opening has at least this share of the largest one's girth is a
 # tube between two openings (a neck): it is cut by the harmonic field between them.
 SECOND_OPENING_SHARE = 0.25
@@ -532,7 +537,13 @@ def region_skeleton(body: Body, region: str) -> list[Skeleton]:
     if key not in body.cache:
         skeletons = []
         for part, field in zip(region_parts(body, region), _closed_fields(body, region)):
-            skeletons.append(skeleton(*part.closed(), field, count=SECTION_COUNT))
+            vertices, faces = part.closed()
+            levels = None
+            if region in LIMB_REGIONS:   # no sections in the foot: its end is the tip's end point
+                targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
+                levels = np.unique(area_quantiles(vertices, faces, field, targets[targets <= 1.0 - FOOT_SHARE]))
+                levels = levels[(levels > field.min()) & (levels < field.max())]
+            skeletons.append(skeleton(vertices, faces, field, levels, count=SECTION_COUNT))
         body.cache[key] = skeletons
     return body.cache[key]
 
