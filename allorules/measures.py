@@ -62,6 +62,10 @@ FOOT_SHARE = 0.1
 SECOND_OPENING_SHARE = 0.25
 # Parts of a region smaller than this share of its largest part's area are label noise.
 MINIMUM_PART_SHARE = 0.2
+# A piece of a paired region has two feet (two legs touching: a camel's knees) when a vertex lies
+# at least this share of the farthest foot's distance (along the surface) from both that foot
+# and the junction; on one leg nothing is much more than half a leg from both.
+SECOND_FOOT_SHARE = 0.75
 
 
 # ---------------------------------------------------------------------------------------------
@@ -234,8 +238,61 @@ def region_parts(body: Body, region: str) -> list[RegionPart]:
     parts = [part for part in parts if part.area >= MINIMUM_PART_SHARE * parts[0].area]
     if region not in PAIRED_REGIONS:
         parts = parts[:1]
+    elif len(parts) == 1:   # a pair that touches (a camel's knees): one piece with two feet
+        split = _split_at_two_feet(parts[0])
+        if split is not None:
+            parts = sorted((_sub_part(body, region, leg, hole_edges) for leg in split), key=lambda part: -part.area)
     body.cache[key] = parts
     return parts
+
+
+def _surface_distances(vertices: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """Shortest distance along the mesh edges from the nearest of ``sources`` to every vertex."""
+    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    graph = sparse.coo_matrix((np.maximum(lengths, 1e-300), (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2).tocsr()
+    return csgraph.dijkstra(graph, directed=False, indices=np.asarray(sources), min_only=True)
+
+
+def _split_at_two_feet(part: RegionPart) -> list[np.ndarray] | None:
+    """The body faces of each leg when one piece of a paired region holds two legs, else None.
+
+    Foot a: the vertex farthest (along the surface) from the junction (the part's largest cut
+    opening). Foot b: the vertex farthest from both a and the junction (largest of the smaller of
+    its two distances); it is a second foot when that is at least ``SECOND_FOOT_SHARE`` of a's
+    distance from the junction (on one leg, no vertex is much more than half a leg from both
+    its foot and its top). Each face goes to the foot it is nearer along the surface.
+    """
+    vertices, faces = part.closed()
+    openings = boundary_loops(vertices, faces)
+    if not openings:
+        return None
+    junction = max(openings, key=lambda loop: loop.girth).vertex_ids
+    from_junction = _surface_distances(vertices, faces, junction)
+    if not np.all(np.isfinite(from_junction)):
+        return None
+    foot_a = int(np.argmax(from_junction))
+    from_a = _surface_distances(vertices, faces, [foot_a])
+    foot_b = int(np.argmax(np.minimum(from_a, from_junction)))
+    if min(from_a[foot_b], from_junction[foot_b]) < SECOND_FOOT_SHARE * from_junction[foot_a]:
+        return None
+    from_b = _surface_distances(vertices, faces, [foot_b])
+    nearer_a = (from_a - from_b)[part.faces].sum(axis=1) < 0
+    legs = []
+    for side in (nearer_a, ~nearer_a):
+        pieces = connected_parts(part.faces[side])
+        if not pieces:
+            return None
+        legs.append(np.flatnonzero(side)[pieces[0]])   # the leg itself, without stray bits across the seam
+    return [part.vertex_index[part.faces[leg]] for leg in legs]
+
+
+def _sub_part(body: Body, region: str, faces: np.ndarray, hole_edges: np.ndarray) -> RegionPart:
+    """A part of ``region`` made of the body faces ``faces`` (vertex ids of the body)."""
+    vertices, local_faces, vertex_index = submesh(body.vertices, faces, np.arange(len(faces)))
+    caps = part_hole_caps(local_faces, vertex_index, hole_edges, len(body.vertices))
+    return RegionPart(region, vertices, local_faces, vertex_index, float(face_areas(vertices, local_faces).sum()),
+                      caps if caps.loop_count else None)
 
 
 def _part_field(part: RegionPart) -> np.ndarray:

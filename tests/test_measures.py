@@ -655,3 +655,54 @@ def test_real_horse_foreleg_length_follows_a_small_shear_without_jumps(shared_me
     assert np.allclose(legs_after, legs_before, rtol=0.01)
     assert region_length(after, "forelimbs") == pytest.approx(region_length(before, "forelimbs"), rel=0.01)
     assert sum(part.caps is not None for part in measures.region_parts(body, "forelimbs")) == 1
+
+
+@pytest.mark.shared_meshes
+def test_real_camel_forelegs_touching_at_the_knees_are_measured_as_two_legs(shared_meshes):
+    # the mesh joins the camel's forelegs at the knees and at the top, so the labels make one
+    # piece with two feet: it used to be measured as one 'leg' of 92.9 (hindlegs: 52.2)
+    segmentation = pytest.importorskip("allorules.segmentation")
+    preparation = pytest.importorskip("allorules.preparation")
+    prepared = preparation.prepare_mesh(shared_meshes / "camel.obj")
+    body = segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    legs = measures.region_parts(body, "forelimbs")
+    assert len(legs) == 2
+    assert legs[1].area == pytest.approx(legs[0].area, rel=0.1)
+    feet = [leg.vertices[np.argmin(leg.vertices @ body.frame.up)] for leg in legs]
+    lateral = np.cross(body.frame.up, body.frame.forward)
+    assert abs((feet[0] - feet[1]) @ lateral) > 5.0          # one foot each side (the feet are ~10 apart)
+    lengths = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(body, "forelimbs")]
+    assert lengths[1] == pytest.approx(lengths[0], rel=0.05)
+    assert 0.7 < region_length(body, "forelimbs") / region_length(body, "hindlimbs") < 1.1
+    # the hindlegs, two pieces already, are not split again
+    assert len(measures.region_parts(body, "hindlimbs")) == 2
+
+
+def arch(leg=6.0, radius=1.0, bend=3.0):
+    """A capsule bent into an arch (∩): two straight legs of length ``leg`` (tips at z = −leg)
+    joined by a half circle of radius ``bend`` (its top at z = bend); centre line 2·leg + π·bend."""
+    half_arc = np.pi * bend / 2
+    vertices, faces = capsule(2 * (leg + half_arc), radius, along=200)
+    x, y, s = vertices.T
+    theta = np.clip((s + half_arc) / bend, 0, np.pi)
+    radial = np.column_stack([-np.cos(theta), np.zeros_like(s), np.sin(theta)])
+    axis = bend * radial
+    axis[:, 2] += np.where(s < -half_arc, s + half_arc, 0) - np.where(s > half_arc, s - half_arc, 0)
+    return axis + x[:, None] * radial + y[:, None] * np.array([0.0, 1.0, 0.0]), faces
+
+
+def test_a_paired_region_in_one_piece_with_two_feet_is_split_into_its_legs():
+    # an arch whose top is cut open (labelled chest): the forelimbs are one piece with two feet
+    vertices, faces = arch()
+    top = (vertices[:, 2] > 3.5) & (np.abs(vertices[:, 0]) < 0.8)
+    body = Body(vertices, faces, np.where(top, 1, 0), ("forelimbs", "chest"))
+    legs = measures.region_parts(body, "forelimbs")
+    assert len(legs) == 2
+    assert legs[1].area == pytest.approx(legs[0].area, rel=0.02)
+    assert {np.sign(np.median(leg.vertices[:, 0])) for leg in legs} == {-1.0, 1.0}   # one leg each side
+    # each leg from the cut at the top of the arch to its tip: a quarter circle and the straight leg
+    centre_line = 6.0 + np.pi * 3.0 / 2
+    assert region_length(body, "forelimbs") == pytest.approx(centre_line, rel=0.05)
+    # one leg alone is not split: no second foot
+    one_leg = Body(vertices, faces, np.where(top | (vertices[:, 0] > 0), 1, 0), ("forelimbs", "chest"))
+    assert len(measures.region_parts(one_leg, "forelimbs")) == 1
