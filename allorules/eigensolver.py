@@ -9,15 +9,18 @@ Methods:
 - ``"dense"``: LAPACK on the full matrices, for small meshes.
 - ``"bands"`` (spectrum slicing, Vallet & Lévy 2008): the spectrum is cut into consecutive
   bands of ~``band_size`` eigenpairs. Each band factorises ``L − σD`` once (sparse LU, symmetric
-  ordering, no off-diagonal pivoting) and runs ARPACK's implicitly restarted Lanczos with the
-  shift-invert operator ``(L − σD)⁻¹ D`` on it. The same factorisation gives the inertia of
+  ordering, no off-diagonal pivoting) and runs Lanczos with the shift-invert operator
+  ``(L − σD)⁻¹ D`` on it: full re-orthogonalisation, no restart, deflated against the previous
+  band, stopped as soon as the band's pairs have converged, every accepted pair checked on
+  ``L`` and ``D`` themselves (``_BandSolver.krylov``). The same factorisation gives the inertia of
   ``L − σD`` (Sylvester's law: the number of negative pivots is the number of eigenvalues below
   σ), so every band *knows* how many eigenpairs lie below its shift: a pair Lanczos missed (one
-  copy of an exactly repeated eigenvalue, say) is recovered by a run deflated against what was
-  found, and none is duplicated. Band edges are placed in a wide spectral gap, never inside a
+  copy of an exactly repeated eigenvalue, say) is recovered by an ARPACK run deflated against
+  what was found, and none is duplicated. Band edges are placed in a wide spectral gap, never inside a
   cluster of (nearly) repeated eigenvalues; the last band is checked by one more inertia count.
   Warm start (``initial``): the previous basis's vectors whose Rayleigh quotients on the new
-  mesh fall in a band start that band's Lanczos run.
+  mesh fall in a band, summed, start that band's Lanczos run (measured: no faster than cold,
+  docs/benchmarks.md).
 - ``"eigsh"``: scipy's shift-invert Lanczos over the whole range, the reference.
 
 ``terminal_progress`` makes a tqdm bar callback when stderr is a terminal (``None`` otherwise).
@@ -37,7 +40,7 @@ import scipy.sparse.linalg
 log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
-BAND_SIZE = 32                    # pairs per band: ARPACK overhead grows with it (docs/benchmarks.md)
+BAND_SIZE = 48                    # pairs a band aims for (docs/benchmarks.md)
 
 Progress = Callable[[int, int], None]
 
@@ -47,7 +50,8 @@ def _normalise_signs(vectors: np.ndarray) -> np.ndarray:
     index = np.argmax(np.abs(vectors), axis=0)
     signs = np.sign(vectors[index, np.arange(vectors.shape[1])])
     signs[signs == 0] = 1.0
-    return vectors * signs
+    vectors *= signs
+    return vectors
 
 
 def terminal_progress(description: str) -> Progress | None:
@@ -178,8 +182,31 @@ def _orthonormalise(block: np.ndarray, basis: np.ndarray | None, mass: np.ndarra
     return block
 
 
+KRYLOV_BLOCK = 1              # columns per block: one factorisation solves a block faster per column
+KRYLOV_DIMENSION_FACTOR = 5   # a band's Krylov basis stops at this many times the pairs it wants
+ACCEPT_RESIDUAL = 1e-10       # relative pencil residual ‖L y − λ D y‖_{D⁻¹} / λ of a converged Ritz pair
+REORTHOGONALISE_DROP = 0.7    # DGKS: orthogonalise twice when a column kept less than this share
+BREAKDOWN = 1e-10             # relative length below which a new Krylov direction is rounding noise
+SHORT_REMAINDER = 1e-3       # relative length below which a new direction is orthogonalised once more
+TRUE_RESIDUAL = 1e-9          # the same, computed on L and D, that an accepted pair must pass
+
+
+def _orthonormal_with_factor(block: np.ndarray, mass: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``block = Q B`` with Q D-orthonormal (SVQB: Gram matrix eigen-decomposition). Directions
+    shorter than ``BREAKDOWN`` × ``scale`` (the length of what they were cancelled from) are
+    rounding noise, not new directions: they are dropped, so Q may have fewer columns."""
+    gram = block.T @ (mass[:, None] * block)
+    gram = 0.5 * (gram + gram.T)
+    values, rotation = np.linalg.eigh(gram)
+    keep = values > (BREAKDOWN * scale) ** 2
+    roots = np.sqrt(values[keep])
+    return block @ (rotation[:, keep] / roots), roots[:, None] * rotation[:, keep].T
+
+
 CLUSTER_GAP = 1e-6     # relative: closer eigenvalues count as one (repeated) eigenvalue
 EDGE_GAP = 1e-4        # relative: smallest gap a band edge may be placed in
+CUT_FROM = 0.9         # the band edge goes in the widest gap of the run above σ past this share of it
+SHIFT_POSITION = 0.75  # a band's shift sits this share of its expected width above its lower edge
 
 
 def _band_cut(values: np.ndarray, below: int, shift: float) -> tuple[int, float]:
@@ -187,14 +214,14 @@ def _band_cut(values: np.ndarray, below: int, shift: float) -> tuple[int, float]
 
     ``values`` (ascending) are the pairs found nearest σ; the first ``below`` lie under σ and
     are complete (inertia). The last cluster found may continue past what was computed, so it
-    is never accepted; the cut goes in the widest relative gap (at least EDGE_GAP) of the upper
-    half of the rest, else at σ itself.
+    is never accepted; the cut goes in the widest relative gap (at least EDGE_GAP) among the last
+    ``1 − CUT_FROM`` of the rest, else further down, else at σ itself.
     """
     last = len(values) - 1
     while last > below and values[last] - values[last - 1] <= CLUSTER_GAP * abs(values[last]):
         last -= 1
     # values[last] starts the final cluster: cuts can go at indices below+1 .. last.
-    for first in (below + max(1, (last - below) // 2), below + 1):
+    for first in (below + max(1, int(CUT_FROM * (last - below))), below + 1):
         candidates = np.arange(first, last + 1)
         if len(candidates) == 0:
             continue
@@ -229,13 +256,22 @@ class _BandSolver:
             self._prepare_warm_start(initial)
 
     def _prepare_warm_start(self, initial: np.ndarray) -> None:
-        """Order the previous basis by its Rayleigh quotients on the new mesh."""
+        """Rayleigh quotients of the previous basis's vectors on the new mesh (no copy of it)."""
         vectors = np.asarray(initial, dtype=np.float64)
-        norms = np.einsum("ij,i,ij->j", vectors, self.mass, vectors)
-        quotients = np.einsum("ij,ij->j", vectors, self.stiffness @ vectors) / norms
-        order = np.argsort(quotients)
-        self.initial = vectors[:, order] / np.sqrt(norms[order])
-        self.initial_quotients = quotients[order]
+        self.initial = vectors
+        self.initial_norms = np.sqrt(np.einsum("ij,i,ij->j", vectors, self.mass, vectors))
+        self.initial_quotients = np.einsum("ij,ij->j", vectors, self.stiffness @ vectors) / self.initial_norms ** 2
+
+    def warm_start(self) -> np.ndarray | None:
+        """The previous basis's vectors whose Rayleigh quotients fall in the band's window, summed
+        (D-normalised first), or ``None`` if there are none."""
+        if self.initial is None:
+            return None
+        low, high = self.window
+        inside = np.flatnonzero((self.initial_quotients >= low) & (self.initial_quotients <= high))
+        if not len(inside):
+            return None
+        return self.initial[:, inside] @ (1.0 / self.initial_norms[inside])
 
     def lanczos(self, factor: _ShiftedFactor, k: int, deflate: np.ndarray | None = None):
         """The ``k`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
@@ -258,13 +294,6 @@ class _BandSolver:
 
         inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
         start = self.rng.standard_normal(self.n)
-        if self.initial is not None and deflate is None:
-            # Warm start: the previous basis's vectors whose Rayleigh quotients fall in the
-            # band, summed, start the Lanczos run (plus a little noise so nothing is missed).
-            low, high = self.window
-            inside = (self.initial_quotients >= low) & (self.initial_quotients <= high)
-            if np.any(inside):
-                start = self.initial[:, inside].sum(axis=1) + 1e-3 * start / np.sqrt(self.n)
         if deflate is not None:
             start -= deflate @ (deflate.T @ (mass * start))
         values, vectors = scipy.sparse.linalg.eigsh(
@@ -272,6 +301,132 @@ class _BandSolver:
         )
         order = np.argsort(values)
         return values[order], vectors[:, order]
+
+    def krylov(self, factor: _ShiftedFactor, lower: float, target_below: int, wanted_above: int,
+               deflate: np.ndarray | None):
+        """Pairs of the band by block Krylov on S = (L − σD)⁻¹ D with full re-orthogonalisation
+        and no restart: the converged Ritz pairs in [lower, σ) and the converged ones above σ up
+        to the first that is not, ascending. Stops once ``target_below`` pairs below σ and
+        ``wanted_above`` above it have converged, or at ``KRYLOV_DIMENSION_FACTOR`` times that many.
+
+        With Q the D-orthonormal Krylov basis, the block Arnoldi relation S Q = Q T + Q₊ B Eᵀ
+        holds to rounding (every projection coefficient is kept in T), so a Ritz pair (θ, y = Q s)
+        of T has the pencil residual r = L y − λ D y = −(1/θ)(L − σD) Q₊ B s₊ with λ = σ + 1/θ:
+        its norm for every pair at once from the small Gram matrix of (L − σD) Q₊, and no Ritz
+        vector is formed until accepted. ``deflate`` (D-orthonormal exact eigenvectors: the
+        previous band's) is projected out, so the run does not spend itself finding them again.
+        """
+        mass = self.mass
+        n = self.n
+        width = min(KRYLOV_BLOCK, max(1, n // 8))
+        start = self.rng.standard_normal((n, width))
+        previous = self.warm_start()
+        if previous is not None:
+            # Warm start: the previous basis's vectors in the band, summed, start the run (with
+            # noise so that nothing is missed). Measured: about as fast as a cold start
+            # (docs/benchmarks.md); a block of them converges slower per column.
+            start[:, 0] = previous + 1e-3 * start[:, 0] / math.sqrt(n)
+        fixed = deflate if deflate is not None and deflate.shape[1] else None
+        limit = max(width, min(KRYLOV_DIMENSION_FACTOR * (target_below + wanted_above), n - (0 if fixed is None else fixed.shape[1]) - 2 * width))
+        basis = np.empty((n, limit + width), order="F")   # columns contiguous: cheap leading slices
+        projection = np.zeros((limit + width, limit + width))       # T, filled block by block
+        block = _orthonormalise(start, fixed, mass)
+        size = block.shape[1]
+        basis[:, :size] = block
+        check_at = max(target_below + wanted_above, 2 * width)
+        while True:
+            current = basis[:, size - block.shape[1]:size]
+            self.solves += block.shape[1]
+            image = factor.solve(mass[:, None] * current)                      # W = S Q_j
+            scale = float(np.sqrt(np.einsum("ij,i,ij->j", image, mass, image).max()))
+            # Full re-orthogonalisation (classical Gram–Schmidt, a second pass when the first
+            # cancelled more than REORTHOGONALISE_DROP of a column: Daniel–Gragg–Kaufman–Stewart);
+            # every coefficient goes into T.
+            recent = slice(max(0, size - 2 * block.shape[1] - 1), size)   # the three-term recurrence first
+            coefficients = basis[:, recent].T @ (mass[:, None] * image)
+            image -= basis[:, recent] @ coefficients
+            projection[recent, size - block.shape[1]:size] += coefficients
+            lengths = np.einsum("ij,i,ij->j", image, mass, image)
+            for _ in range(2):
+                coefficients = basis[:, :size].T @ (mass[:, None] * image)
+                image -= basis[:, :size] @ coefficients
+                projection[:size, size - block.shape[1]:size] += coefficients
+                remaining = np.einsum("ij,i,ij->j", image, mass, image)
+                if np.all(remaining > REORTHOGONALISE_DROP ** 2 * lengths):
+                    break
+                lengths = remaining
+            if fixed is not None:
+                image -= fixed @ (fixed.T @ (mass[:, None] * image))
+            next_block, link = _orthonormal_with_factor(image, mass, scale)     # W − Q C = Q₊ B
+            if next_block.shape[1] and np.sqrt(remaining.min()) < SHORT_REMAINDER * scale:
+                # Normalising a very short remainder magnifies what is left of the basis in it: one
+                # more pass, kept in the books (W − Q C = Q₊ B with C and B both updated).
+                coefficients = basis[:, :size].T @ (mass[:, None] * next_block)
+                next_block -= basis[:, :size] @ coefficients
+                projection[:size, size - block.shape[1]:size] += coefficients @ link
+                next_block, again = _orthonormal_with_factor(next_block, mass, 1.0)
+                link = again @ link
+            grows = next_block.shape[1] > 0 and size + next_block.shape[1] <= limit
+            if size >= check_at or not grows:
+                check_at = size + max(width, 8, size // 8)
+                outcome = self._converged_pairs(factor, lower, target_below, wanted_above, basis[:, :size],
+                                                projection[:size, :size], next_block, link, block.shape[1])
+                if outcome is not None or not grows:
+                    if outcome is None:
+                        outcome = self._converged_pairs(factor, lower, target_below, wanted_above, basis[:, :size],
+                                                        projection[:size, :size], next_block, link,
+                                                        block.shape[1], final=True)
+                    return outcome
+            projection[size:size + next_block.shape[1], size - block.shape[1]:size] = link
+            basis[:, size:size + next_block.shape[1]] = next_block
+            size += next_block.shape[1]
+            block = next_block
+
+    def _converged_pairs(self, factor: _ShiftedFactor, lower: float, target_below: int, wanted_above: int,
+                         basis: np.ndarray, projection: np.ndarray, next_block: np.ndarray, link: np.ndarray,
+                         last_width: int, final: bool = False):
+        """Rayleigh–Ritz on T: the converged pairs if the band has what it wants (or ``final``),
+        else ``None``. Below σ every converged pair in [lower, σ); above σ the converged ones up
+        to the first that is not."""
+        thetas, ritz = np.linalg.eigh(0.5 * (projection + projection.T))
+        keep = np.abs(thetas) > 1e-300
+        thetas, ritz = thetas[keep], ritz[:, keep]
+        values = factor.shift + 1.0 / thetas
+        if next_block.shape[1]:
+            # r_i = −(1/θ_i) (L − σD) Q₊ (B s₊,i), its D⁻¹-norm from the Gram matrix of (L − σD) Q₊.
+            tails = link @ ritz[-last_width:, :]
+            outer = self.stiffness @ next_block - factor.shift * (self.mass[:, None] * next_block)
+            gram = outer.T @ (outer / self.mass[:, None])
+            residuals = np.sqrt(np.maximum(np.einsum("ij,ik,kj->j", tails, gram, tails), 0.0)) / np.abs(thetas)
+        else:
+            residuals = np.zeros(len(values))       # an invariant subspace: every pair is exact
+        converged = residuals <= ACCEPT_RESIDUAL * np.maximum(np.abs(values), self.value_floor)
+        order = np.argsort(values)
+        values, ritz, converged = values[order], ritz[:, order], converged[order]
+        below = (values >= lower) & (values < factor.shift) & converged
+        above = values >= factor.shift
+        first_open = np.flatnonzero(above & ~converged)
+        stop = first_open[0] if len(first_open) else len(values)
+        above &= np.arange(len(values)) < stop
+        if not final and (np.count_nonzero(below) < target_below or np.count_nonzero(above) < wanted_above):
+            return None
+        chosen = np.flatnonzero(below | above)
+        vectors = basis @ ritz[:, chosen]
+        # The estimate assumes exact solves; a factorisation near a pole can be a little off, so
+        # every pair is checked on L and D themselves. Pairs that fail are dropped: one missing
+        # below σ is recovered from the inertia count, and above σ the band stops before it.
+        true = self.stiffness @ vectors - self.mass[:, None] * vectors * values[chosen]
+        true = np.sqrt(np.einsum("ij,i,ij->j", true, 1.0 / self.mass, true))
+        passed = true <= TRUE_RESIDUAL * np.maximum(np.abs(values[chosen]), self.value_floor)
+        if not np.all(passed):
+            log.debug("band at sigma=%g: %d of %d pairs fail the residual check", factor.shift,
+                      np.count_nonzero(~passed), len(passed))
+            chosen_above = values[chosen] >= factor.shift
+            failed_above = np.flatnonzero(chosen_above & ~passed)
+            if len(failed_above):
+                passed &= ~chosen_above | (np.arange(len(chosen)) < failed_above[0])
+            chosen, vectors = chosen[passed], vectors[:, passed]
+        return values[chosen], vectors
 
     def recover(self, factor: _ShiftedFactor, missing: int, found: list[np.ndarray], lowest: float, spare: int):
         """Pairs below σ and at or above ``lowest`` that the inertia says exist but were not
@@ -295,13 +450,12 @@ class _BandSolver:
 
     def lanczos_band(self, factor: _ShiftedFactor, lower: float, accepted_below: int, wanted: int,
                      previous: np.ndarray | None, previous_lower: float):
-        """A band by ARPACK: the ``wanted`` pairs nearest σ; accept those in [lower, σ) (all of
-        them: their number is known from the inertia, and pairs missed here or in the previous
-        band's run above its shift are recovered by deflation) and those above σ up to a wide
-        gap below the outermost one found."""
+        """A band: the pairs in [lower, σ) (all of them: their number is known from the inertia,
+        and pairs missed here or in the previous band's run above its shift are recovered by
+        deflation) and the converged run above σ, up to a wide gap below the outermost found."""
         shift = factor.shift
         target_below = factor.below - accepted_below
-        values, vectors = self.lanczos(factor, max(wanted, target_below + 8))
+        values, vectors = self.krylov(factor, lower, target_below, max(wanted - target_below, 8), previous)
         keep = values >= lower
         values, vectors = values[keep], vectors[:, keep]
         below = int(np.count_nonzero(values < shift))
@@ -318,9 +472,38 @@ class _BandSolver:
             below = target_below
             below = int(np.count_nonzero(values < shift))
         # The outermost pairs found above σ may be part of a cluster that continues beyond the
-        # window: cut in the widest gap of the upper half of the run above σ.
+        # window: cut in a wide gap near the top of the run above σ.
         cut, upper = _band_cut(values, below, shift)
         return values[:cut], vectors[:, :cut], upper
+
+
+class _ColumnStore:
+    """The accepted eigenvectors, written once into one array as bands are accepted, so that the
+    basis is never held twice (peak memory, docs/benchmarks.md)."""
+
+    def __init__(self, rows: int, capacity: int):
+        self.columns = np.empty((rows, capacity))
+        self.used = 0
+
+    def append(self, vectors: np.ndarray) -> np.ndarray:
+        """Store ``vectors`` after what is there; returns the stored copy (a view)."""
+        width = vectors.shape[1]
+        if self.used + width > self.columns.shape[1]:       # a band accepted more than planned
+            grown = np.empty((self.columns.shape[0], self.used + width + 64))
+            grown[:, :self.used] = self.columns[:, :self.used]
+            self.columns = grown
+        self.columns[:, self.used:self.used + width] = vectors
+        self.used += width
+        return self.columns[:, self.used - width:self.used]
+
+    def ordered(self, order: np.ndarray) -> np.ndarray:
+        """Columns ``order`` in that order, permuted in place a slab of rows at a time."""
+        rows = self.columns.shape[0]
+        step = max(1, (1 << 24) // max(1, self.columns.shape[1] * 8))   # ~16 MB slabs
+        for start in range(0, rows, step):
+            slab = self.columns[start:start + step]
+            slab[:, :len(order)] = slab[:, order]
+        return self.columns[:, :len(order)]
 
 
 def _spectrum_slicing(
@@ -334,16 +517,17 @@ def _spectrum_slicing(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bands from the bottom of the spectrum up until ``count`` pairs are accepted.
 
-    Band j factorises L − σ_j D with σ_j a quarter band above its lower edge (the previous
-    band's upper edge), so the pairs below σ_j, whose number the inertia gives exactly, are
-    near σ_j and converge first; it accepts those plus the converged run above σ_j, cut in a
+    Band j factorises L − σ_j D with σ_j ``SHIFT_POSITION`` of its expected width above its lower
+    edge (the previous band's upper edge), so most of its pairs lie below σ_j, where the inertia
+    says exactly how many there are; it accepts those plus the converged run above σ_j, cut in a
     wide spectral gap. The next band's inertia verifies that run; the last one is verified by
     one more inertia count at its upper edge.
     """
     solver = _BandSolver(stiffness, mass, count, band_size, initial, progress)
     n = len(mass)
     values_found: list[np.ndarray] = []
-    vectors_found: list[np.ndarray] = []
+    vectors_found: list[np.ndarray] = []     # views into the store, band by band
+    store = _ColumnStore(n, count + band_size)
     done = 0
     lower = previous_lower = -np.inf
     band_index = 0
@@ -355,7 +539,7 @@ def _spectrum_slicing(
             shift = -0.5 * solver.value_floor
             reach = shift + 1.1 * wanted / solver.density
         else:
-            shift = lower + 0.35 * wanted / solver.density
+            shift = lower + SHIFT_POSITION * wanted / solver.density
             reach = lower + 1.1 * wanted / solver.density
         factor = _factorise(solver.stiffness_csc, solver.mass_matrix, shift)
         solver.window = (lower if np.isfinite(lower) else -np.inf, reach)
@@ -368,7 +552,7 @@ def _spectrum_slicing(
             start = max(lower, 0.0) if np.isfinite(lower) else 0.0
             solver.density = len(values) / max(upper - start, 1e-300)
         values_found.append(values)
-        vectors_found.append(vectors)
+        vectors_found.append(store.append(vectors))
         done += len(values)
         previous_lower, lower = lower, upper
         band_index += 1
@@ -382,15 +566,8 @@ def _spectrum_slicing(
         values, vectors = solver.recover(top, top.below - done, [vectors_found[-1]], previous_lower,
                                          spare=vectors_found[-1].shape[1])
         values_found.append(values)
-        vectors_found.append(vectors)
+        vectors_found.append(store.append(vectors))
         done += len(values)
     eigenvalues = np.concatenate(values_found)
     order = np.argsort(eigenvalues, kind="stable")[:count]
-    eigenvectors = np.empty((n, count))
-    column = 0
-    for vectors in vectors_found:
-        width = vectors.shape[1]
-        chosen = order[(order >= column) & (order < column + width)]
-        eigenvectors[:, np.flatnonzero((order >= column) & (order < column + width))] = vectors[:, chosen - column]
-        column += width
-    return eigenvalues[order], eigenvectors
+    return eigenvalues[order], store.ordered(order)

@@ -174,3 +174,31 @@ def test_real_horse_against_eigsh():
     reference, _ = smallest_eigenpairs(stiffness, mass, count, method="eigsh")
     values, vectors = smallest_eigenpairs(stiffness, mass, count, method="bands", band_size=60)
     check_eigenpairs(stiffness, mass, values, vectors, reference)
+
+
+@pytest.mark.slow
+def test_default_bands_on_an_animal_match_dense():
+    """The default path (many bands of the default size, Lanczos without restarts) on an animal's
+    Laplacian: every pair of the dense reference, none missing or duplicated."""
+    from allorules.quadruped import generate_quadruped
+
+    animal = generate_quadruped("horse", vertices=2800)
+    stiffness, mass = operators(np.asarray(animal.vertices, dtype=float), np.asarray(animal.faces))
+    count = 400
+    reference, reference_vectors = dense_reference(stiffness, mass, count)
+    values, vectors = smallest_eigenpairs(stiffness, mass, count, method="bands")
+    check_eigenpairs(stiffness, mass, values, vectors, reference)
+    same_subspaces(vectors, reference_vectors, mass, reference, relative_gap=1e-6)
+
+
+def test_rounding_noise_is_not_a_new_krylov_direction():
+    from allorules.eigensolver import _orthonormal_with_factor
+
+    rng = np.random.default_rng(3)
+    mass = rng.uniform(0.5, 2.0, 200)
+    block = rng.standard_normal((200, 3))
+    block[:, 2] = 1e-14 * rng.standard_normal(200)     # what cancellation leaves of a known direction
+    orthonormal, factor = _orthonormal_with_factor(block, mass, scale=1.0)
+    assert orthonormal.shape[1] == 2
+    np.testing.assert_allclose(orthonormal.T @ (mass[:, None] * orthonormal), np.eye(2), atol=1e-12)
+    np.testing.assert_allclose(orthonormal @ factor, block, atol=1e-12)
