@@ -366,7 +366,8 @@ class Skeleton:
     ``kinds[i]`` is ``"section"`` (centroid of ``loops[i]``, an isocontour), ``"boundary"``
     (centroid of ``loops[i]``, an open boundary of the mesh) or ``"tip"`` (the end of a limb,
     where isocontours shrink to a point: :func:`end_point` beyond the last loop, ``tip_anchors[i]``,
-    as far as the surface beyond it, ``tip_regions[i]``, reaches; without such a loop, the vertex
+    as far as the surface beyond it, ``tip_regions[i]``, reaches along the part (from the loop at
+    a quarter of the levels back, ``tip_bases[i]``); without such a loop, the vertex
     ``tip_vertices[i]`` where the field is extreme).
     """
 
@@ -378,6 +379,7 @@ class Skeleton:
     tip_vertices: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # mesh vertex per node, −1 if not a tip
     tip_anchors: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # per node: the loop node a tip lies beyond, −1 if none
     tip_regions: list[np.ndarray | None] = dataclass_field(default_factory=list)                    # per node: a tip's end-band vertices
+    tip_bases: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))     # per node: the loop a tip's direction is taken from, −1 if none
 
     @property
     def diameter(self) -> float:
@@ -397,7 +399,9 @@ class Skeleton:
             if loop is not None:
                 points.append(loop.centroid)
             elif self.tip_anchors[node] >= 0:
-                points.append(end_point(vertices, loops[self.tip_anchors[node]], self.tip_regions[node]))
+                base = self.tip_bases[node]
+                points.append(end_point(vertices, loops[self.tip_anchors[node]], self.tip_regions[node],
+                                        None if base < 0 else loops[base]))
             else:
                 points.append(vertices[self.tip_vertices[node]])
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -405,20 +409,28 @@ class Skeleton:
         weights = np.maximum(np.linalg.norm(points[graph.row] - points[graph.col], axis=1), 1e-300)
         upper = sparse.coo_matrix((weights, (graph.row, graph.col)), shape=self.graph.shape)
         return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices,
-                        self.tip_anchors, self.tip_regions)
+                        self.tip_anchors, self.tip_regions, self.tip_bases)
 
 
-def end_point(vertices: np.ndarray, anchor: Loop, end_vertices: np.ndarray) -> np.ndarray:
-    """Where a part ends beyond its last cross-section ``anchor``: on the section's axis, as far
-    out as the surface beyond it (``end_vertices``) reaches.
+def end_point(vertices: np.ndarray, anchor: Loop, end_vertices: np.ndarray, base: Loop | None = None) -> np.ndarray:
+    """Where a part ends beyond its last cross-section ``anchor``: as far out as the surface beyond
+    it (``end_vertices``) reaches along the part.
 
-    p = c + n · max_v (v − c)·n, with c the loop's centroid and n its unit normal pointing to the
-    end (to the side where the end vertices lie on the whole). A maximum of continuous functions
-    of the vertices, so it does not jump when a neighbouring vertex becomes the extreme one (the
-    field's extreme vertex, on a blunt toe or a flat sole, does); and it measures how far the end
-    reaches along the part, not across it (the extreme vertex may sit on the rim of a wide sole).
+    p = c + n · max_v (v − c)·n, with c the loop's centroid and n the end's direction: from the
+    centroid of ``base`` (a loop some way back from the end) to c, or without one the loop's unit
+    normal; either way pointing to the end (to the side where the end vertices lie on the whole).
+    A maximum of continuous functions of the vertices, so it does not jump when a neighbouring
+    vertex becomes the extreme one (the field's extreme vertex, on a blunt toe or a flat sole,
+    does); and it measures how far the end reaches along the part, not across it (the extreme
+    vertex may sit on the rim of a wide sole). A chord over several loops rather than the last
+    loop's normal: the tilt of one loop across an angled hoof moved the end by a few per cent of
+    its width.
     """
     centre, normal = anchor.centroid, anchor.normal
+    if base is not None:
+        direction = centre - base.centroid
+        if np.linalg.norm(direction) > 0:
+            normal = direction / np.linalg.norm(direction)
     offsets = (np.asarray(vertices)[np.asarray(end_vertices)] - centre) @ normal
     if offsets.sum() < 0:
         normal, offsets = -normal, -offsets
@@ -480,6 +492,7 @@ def skeleton(
     tip_vertices: list[int] = []
     tip_anchors: list[int] = []
     tip_regions: list[np.ndarray | None] = []
+    tip_bases: list[int] = []
     node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
     for level in levels:
         for loop in isocontour_loops(vertices, faces, field, level):
@@ -490,6 +503,7 @@ def skeleton(
             tip_vertices.append(-1)
             tip_anchors.append(-1)
             tip_regions.append(None)
+            tip_bases.append(-1)
     for loop in boundary_loops(vertices, faces):
         points.append(loop.centroid)
         kinds.append("boundary")
@@ -498,6 +512,7 @@ def skeleton(
         tip_vertices.append(-1)
         tip_anchors.append(-1)
         tip_regions.append(None)
+        tip_bases.append(-1)
 
     # Field value of each node so far: a loop's level; an open boundary's mean value. A tip lies
     # beyond every loop of its end band (tip_value).
@@ -543,13 +558,26 @@ def skeleton(
                 if outermost:
                     anchor = max(outermost, key=lambda node: node_loops[node].girth)
                     beyond = part_vertices[values <= end_level] if band == 0 else part_vertices[values >= end_level]
-                    points.append(end_point(vertices, node_loops[anchor], beyond))
+                    # the loop a quarter of the levels back from this end (the nearest closed one
+                    # towards it; the longest where a level has several): the end's direction
+                    back = max(1, len(levels) // 4)
+                    base_level = levels[back] if band == 0 else levels[-1 - back]
+                    sections = [node for node, kind in enumerate(kinds) if kind == "section"
+                                and (base_level <= node_loops[node].level <= end_level if band else
+                                     end_level <= node_loops[node].level <= base_level)]
+                    nearest = (max if band == 0 else min)(node_loops[node].level for node in sections)
+                    base = max((node for node in sections if node_loops[node].level == nearest),
+                               key=lambda node: node_loops[node].girth)
+                    base = -1 if base == anchor else base
+                    points.append(end_point(vertices, node_loops[anchor], beyond, None if base < 0 else node_loops[base]))
                     tip_anchors.append(anchor)
                     tip_regions.append(beyond)
+                    tip_bases.append(base)
                 else:
                     points.append(vertices[tip])
                     tip_anchors.append(-1)
                     tip_regions.append(None)
+                    tip_bases.append(-1)
                 kinds.append("tip")
                 node_loops.append(None)
                 tip_vertices.append(int(tip))
@@ -580,4 +608,4 @@ def skeleton(
     else:
         graph = sparse.csr_matrix((len(points), len(points)))
     return Skeleton(point_array, graph, kinds, node_loops, levels, np.asarray(tip_vertices, dtype=np.int64),
-                    np.asarray(tip_anchors, dtype=np.int64), tip_regions)
+                    np.asarray(tip_anchors, dtype=np.int64), tip_regions, np.asarray(tip_bases, dtype=np.int64))
