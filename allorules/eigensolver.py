@@ -36,10 +36,12 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sparse
 import scipy.sparse.linalg
+import threadpoolctl
 
 log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
+BAND_BLAS_THREADS = 1
 BAND_SIZE = 48                    # pairs a band aims for (docs/benchmarks.md)
 
 Progress = Callable[[int, int], None]
@@ -99,9 +101,13 @@ def smallest_eigenpairs(
         if initial is not None and (initial.ndim != 2 or initial.shape[0] != n):
             initial = None
         try:
-            eigenvalues, vectors = _spectrum_slicing(
-                stiffness, mass, count, initial=initial, progress=progress, band_size=band_size
-            )
+            # One BLAS thread: the bands' level-2 work is memory-bound, and idle BLAS threads that
+            # spin while another process holds the other core made a solve 3× slower (measured,
+            # docs/benchmarks.md).
+            with threadpoolctl.threadpool_limits(limits=BAND_BLAS_THREADS, user_api="blas"):
+                eigenvalues, vectors = _spectrum_slicing(
+                    stiffness, mass, count, initial=initial, progress=progress, band_size=band_size
+                )
         except np.linalg.LinAlgError as error:
             # Never return an incomplete basis: fall back to one Lanczos run over everything.
             log.warning("spectrum slicing failed (%s); using the reference solver", error)
