@@ -47,12 +47,31 @@ BAND_SIZE = 48                    # pairs a band aims for (docs/benchmarks.md)
 Progress = Callable[[int, int], None]
 
 
-def _normalise_signs(vectors: np.ndarray) -> np.ndarray:
-    """Deterministic signs: the entry of largest magnitude of each eigenvector is positive."""
-    index = np.argmax(np.abs(vectors), axis=0)
-    signs = np.sign(vectors[index, np.arange(vectors.shape[1])])
-    signs[signs == 0] = 1.0
-    vectors *= signs
+def _row_slabs(rows: int, columns: int) -> range:
+    """Starts of ~16 MB slabs of rows, so that whole-basis work needs no basis-sized temporary."""
+    return range(0, rows, max(1, (1 << 24) // max(1, 8 * columns)))
+
+
+def _normalise(vectors: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """In place: unit D-norm columns, with deterministic signs (the entry of largest magnitude of
+    each eigenvector positive). Works a slab of rows at a time (peak memory)."""
+    rows, columns = vectors.shape
+    slabs = _row_slabs(rows, columns)
+    step = slabs.step
+    squares = np.zeros(columns)
+    largest = np.zeros(columns)
+    signs = np.ones(columns)
+    for start in slabs:
+        slab = vectors[start:start + step]
+        squares += np.einsum("ij,i,ij->j", slab, mass[start:start + step], slab)
+        index = np.argmax(np.abs(slab), axis=0)
+        values = slab[index, np.arange(columns)]
+        larger = np.abs(values) > largest
+        largest[larger] = np.abs(values[larger])
+        signs[larger] = np.where(values[larger] < 0, -1.0, 1.0)
+    scale = signs / np.sqrt(squares)
+    for start in slabs:
+        vectors[start:start + step] *= scale
     return vectors
 
 
@@ -117,9 +136,7 @@ def smallest_eigenpairs(
     if progress is not None:
         progress(count, count)
     # Re-normalise in the D-inner product (the solvers already do; this guards round-off).
-    norms = np.sqrt(np.einsum("ij,i,ij->j", vectors, mass, vectors))
-    vectors /= norms
-    return eigenvalues, _normalise_signs(vectors)
+    return eigenvalues, _normalise(vectors, mass)
 
 
 def _eigsh(stiffness: sparse.spmatrix, mass: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -265,8 +282,15 @@ class _BandSolver:
         """Rayleigh quotients of the previous basis's vectors on the new mesh (no copy of it)."""
         vectors = np.asarray(initial, dtype=np.float64)
         self.initial = vectors
-        self.initial_norms = np.sqrt(np.einsum("ij,i,ij->j", vectors, self.mass, vectors))
-        self.initial_quotients = np.einsum("ij,ij->j", vectors, self.stiffness @ vectors) / self.initial_norms ** 2
+        squares = np.zeros(vectors.shape[1])
+        energies = np.zeros(vectors.shape[1])
+        slabs = _row_slabs(*vectors.shape)
+        for start in slabs:        # xᵀ D x and xᵀ L x by slabs of rows: no basis-sized temporary
+            rows = slice(start, start + slabs.step)
+            squares += np.einsum("ij,i,ij->j", vectors[rows], self.mass[rows], vectors[rows])
+            energies += np.einsum("ij,ij->j", vectors[rows], self.stiffness[rows] @ vectors)
+        self.initial_norms = np.sqrt(squares)
+        self.initial_quotients = energies / squares
 
     def warm_start(self) -> np.ndarray | None:
         """The previous basis's vectors whose Rayleigh quotients fall in the band's window, summed
@@ -504,10 +528,9 @@ class _ColumnStore:
 
     def ordered(self, order: np.ndarray) -> np.ndarray:
         """Columns ``order`` in that order, permuted in place a slab of rows at a time."""
-        rows = self.columns.shape[0]
-        step = max(1, (1 << 24) // max(1, self.columns.shape[1] * 8))   # ~16 MB slabs
-        for start in range(0, rows, step):
-            slab = self.columns[start:start + step]
+        slabs = _row_slabs(*self.columns.shape)
+        for start in slabs:
+            slab = self.columns[start:start + slabs.step]
             slab[:, :len(order)] = slab[:, order]
         return self.columns[:, :len(order)]
 
