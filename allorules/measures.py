@@ -9,7 +9,9 @@ mass is a volume. The public names the rules engine calls are :func:`body_mass`,
 - Cross-sections: closed isocontour loops of a field that runs along the part
   (:mod:`allorules.sections`): the part's own Fiedler vector for limbs and other regions, planes
   across the torso axis for the chest and abdomen.
-- Lengths: diameter of the region's skeleton; mean over the parts of a paired region.
+- Lengths: diameter of the region's skeleton; mean over the parts of a paired region (a pair
+  that comes out as one piece with two feet is split into its legs). Fields and skeletons are
+  taken with the part's holes (holes of the body's surface, not cuts) capped.
 - Peak stress σ = M / A with A the smallest limb cross-section away from the junction and the tip.
 
 Expensive derived things (region parts, fields, sections) are kept in ``body.cache``, which is
