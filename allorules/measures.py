@@ -602,7 +602,7 @@ def region_skeleton(body: Body, region: str) -> list[Skeleton]:
                 targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
                 levels = np.unique(area_quantiles(vertices, faces, field, targets[targets <= 1.0 - FOOT_SHARE]))
                 levels = levels[(levels > field.min()) & (levels < field.max())]
-            skeletons.append(skeleton(vertices, faces, field, levels, count=SECTION_COUNT))
+            skeletons.append(skeleton(vertices, faces, field, levels, count=SECTION_COUNT, by_level=region in LIMB_REGIONS))
         body.cache[key] = skeletons
     return body.cache[key]
 

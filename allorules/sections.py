@@ -463,6 +463,7 @@ def skeleton(
     levels: np.ndarray | None = None,
     *,
     count: int = 40,
+    by_level: bool = False,
 ) -> Skeleton:
     """Skeleton of a mesh from the isocontours of ``field`` at ``levels``.
 
@@ -472,9 +473,11 @@ def skeleton(
     every closed isocontour loop (its centroid); every open boundary loop of the mesh (its
     centroid); in each band below the first or above the last level that holds no boundary, the
     end point beyond the outermost loop (a tip, :func:`end_point`). Nodes that touch the same band
-    part are joined in the order of their field value (a loop's level, a boundary's mean value,
-    a tip beyond every loop), each level's nodes to the next level's: the skeleton runs through
-    every loop, rather than skipping some where a face happens to span two levels.
+    part are joined: every two of them, or with ``by_level`` in the order of their field value (a
+    loop's level, a boundary's mean value, a tip beyond every loop), each level's nodes to the
+    next level's, so that the skeleton runs through every loop rather than skipping some where a
+    face happens to span two levels. By level is steadier where the loops are well sampled (a
+    limb); on a coarse part the path through every loop zigzags and every-two is steadier.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
@@ -583,16 +586,22 @@ def skeleton(
                 tip_vertices.append(int(tip))
                 members.setdefault(part, set()).add(len(points) - 1)
         for part_nodes in members.values():
-            # Join the nodes of a band part in the order of their field value, each group (one
-            # level) to the next: a loop that touches the band only through a face spanning two
-            # levels is not a shortcut past the loops between them. Such faces come and go as
-            # the levels slide over the vertices' values, and the shortcuts with them, which
-            # made the diameter jump on nearly identical meshes.
+            # by_level: join the nodes of a band part in the order of their field value, each
+            # group (one level) to the next, so that a loop touching the band only through a
+            # face spanning two levels is not a shortcut past the loops between them (such faces
+            # come and go as the levels slide over the vertices' values, and the shortcuts with
+            # them). Otherwise every two nodes of a band part are joined.
+            if not by_level:
+                ordered = sorted(part_nodes)
+                for i, p in enumerate(ordered):
+                    for q in ordered[i + 1:]:
+                        edges.add((p, q))
+                continue
             groups: dict[float, list[int]] = {}
             for node in part_nodes:
                 groups.setdefault(node_values[node] if node < len(node_values) else tip_value(band), []).append(node)
-            ordered = [groups[value] for value in sorted(groups)]
-            for lower_group, upper_group in zip(ordered, ordered[1:]):
+            ordered_groups = [groups[value] for value in sorted(groups)]
+            for lower_group, upper_group in zip(ordered_groups, ordered_groups[1:]):
                 for p in lower_group:
                     for q in upper_group:
                         edges.add((min(p, q), max(p, q)))
