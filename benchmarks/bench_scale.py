@@ -1,10 +1,11 @@
-"""How long a whole biology-aware run takes: R = 2 with the ``quadruped`` ruleset.
+"""How long a whole biology-aware run takes: R = 2 (or ``--mass-ratio``) with ``quadruped``.
 
-Run: .venv/bin/python benchmarks/bench_scale.py [--modes M] [--vertices N] [--skip-real]
+Run: .venv/bin/python benchmarks/bench_scale.py [--modes M] [--vertices N] [--mass-ratio R] [--skip-real]
 
 Two animals of about 8,400 vertices: the real horse of /work/shared/meshes (8,431 vertices,
 labelled automatically; skipped when the folder is absent) and the generated horse. Prints wall
-and CPU time of the run split into bases and solves, trials per step and the achieved figures.
+and CPU time of the run split into bases and solves, trials per step, each step's largest
+residual and the achieved figures.
 The basis cache is off, so every basis is computed. Record results in docs/benchmarks.md.
 """
 from __future__ import annotations
@@ -24,11 +25,11 @@ from allorules.rules import load_ruleset  # noqa: E402
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
-def run(name: str, body: Body, modes: int | None) -> None:
+def run(name: str, body: Body, modes: int | None, mass_ratio: float = 2.0) -> None:
     registry = registry_for(None)
     ruleset = load_ruleset("quadruped", registry)
     wall, cpu = time.perf_counter(), time.process_time()
-    result = scale_with_ruleset(body, ruleset, 2.0, registry=registry, modes=modes, use_cache=False)
+    result = scale_with_ruleset(body, ruleset, mass_ratio, registry=registry, modes=modes, use_cache=False)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     bases = sum(step.basis_seconds for step in result.steps)
     solves = sum(step.solve_seconds for step in result.steps)
@@ -37,6 +38,11 @@ def run(name: str, body: Body, modes: int | None) -> None:
     print(f"  wall {wall:.1f} s (bases {bases:.1f} s, solves {solves:.1f} s), cpu {cpu:.1f} s, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"  trials per step {trials} (total {sum(trials)})")
+    for index, step in enumerate(result.steps, 1):
+        worst = max(step.residuals, key=lambda key: abs(step.residuals[key]))
+        alphas = ", ".join(f"{region} {alpha:+.3f}" for region, alpha in step.alphas.items())
+        print(f"  step {index}: {step.status}, largest residual {worst} {step.residuals[worst]:+.4f}; "
+              f"s {step.scale:.4f}, alpha0 {step.alpha0:+.3f}, {alphas}")
     print(f"  converged {result.converged}, mass ratio {result.mass_ratio:.4f}, stress ratio "
           f"{result.stress_ratio if result.stress_ratio is None else round(result.stress_ratio, 4)}, "
           f"flipped faces {result.flipped_faces}")
@@ -54,6 +60,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modes", type=int, default=None, help="basis size (default 1000)")
     parser.add_argument("--vertices", type=int, default=8400, help="vertices of the generated horse")
+    parser.add_argument("--mass-ratio", type=float, default=2.0, help="R (default 2)")
     parser.add_argument("--skip-real", action="store_true")
     parser.add_argument("--skip-generated", action="store_true")
     arguments = parser.parse_args()
@@ -65,11 +72,12 @@ def main() -> None:
         started = time.perf_counter()
         body = label_quadruped(Body(prepared.vertices, prepared.faces))
         print(f"real horse labelled in {time.perf_counter() - started:.1f} s")
-        run("real horse (shared/meshes/horse.obj)", body, arguments.modes)
+        run("real horse (shared/meshes/horse.obj)", body, arguments.modes, arguments.mass_ratio)
     if not arguments.skip_generated:
         from allorules.quadruped import generate_quadruped
 
-        run("generated horse", generate_quadruped("horse", vertices=arguments.vertices).body(), arguments.modes)
+        run("generated horse", generate_quadruped("horse", vertices=arguments.vertices).body(), arguments.modes,
+            arguments.mass_ratio)
 
 
 if __name__ == "__main__":
