@@ -12,6 +12,16 @@ A run (METHOD §6):
   basis), measures every target on that mesh (q* = q_0 · r^e) and solves Eq. 11 for
   (s, α_0, α_j) (:func:`allorules.solver.solve_step`). Labels travel with the vertices (the
   connectivity never changes).
+* What earlier steps missed is carried forward: step k's target is also multiplied by
+  q_input · R_{k−1}^e / q_0 (where the run should stand at the step's start over where it does,
+  both measured afresh), so that misses do not add up over the steps. The solver meets its
+  targets on measures carried along the step start's material curves (smooth in the variables),
+  which differ from fresh measures of the output by up to ~0.7 %; on the real horse at R = 0.5
+  that added up to a hind-leg exponent of 0.276 for 0.336 over 7 steps, each step on target.
+  When every step's output measures as planned, every correction is 1 and this is METHOD §6.
+  Constraints likewise compare each trial with the input at the mass ratio reached after the
+  step (the limb-stress one: stress at the input's material section equal to the input's), which
+  is how the whole run is judged, so their misses do not add up either.
 * Peak stress is measured at one material section chosen on the input body and followed through
   every step (:class:`allorules.global_scaling.StressGauge`), as in global scaling.
 * Success is measured on the whole run, on fresh measurements of the output against the input:
@@ -207,15 +217,20 @@ def scale_with_ruleset(
                                   section=gauge.describe() if gauge else None, transform=ruleset.solver.transform)
 
     current, basis, jacobian, start = initial, None, None, None
+    terms = energy_terms(ruleset)
+    anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
+    reached = 1.0                                       # the mass ratio planned up to this step
     progress = progress or RunProgress()
     for index, ratio in enumerate(ratios):
         progress.step_started(index + 1, len(ratios))
         started = time.perf_counter()
         basis = step_basis(current, modes, basis, use_cache, progress.basis)
         solving = time.perf_counter()
+        corrections = _carried_misses(terms, anchors, reached, current, measure)
         try:
             solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian,
-                                  start=start, on_trial=progress.trial)
+                                  start=start, on_trial=progress.trial, corrections=corrections,
+                                  constraint_reference=(initial, reached * ratio))
         except ScalingError as error:
             result.body = current
             _finish(result, initial, ruleset, registry, measure, gauge)
@@ -242,10 +257,23 @@ def scale_with_ruleset(
         log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
                   solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
         current = following
+        reached *= ratio
         progress.step_finished(index + 1, len(ratios))
     result.body = current
     _finish(result, initial, ruleset, registry, measure, gauge)
     return result
+
+
+def _carried_misses(terms, anchors: dict[str, float], reached: float, current: Body, measure) -> dict[str, float]:
+    """Per term: where the run should stand at this step's start, q_input · R_reached^e, over
+    where it does, q(current), both fresh. 1 everywhere when the earlier steps landed as planned."""
+    corrections = {}
+    for term in terms:
+        planned = anchors[term.id] * reached ** term.exponent
+        corrections[term.id] = planned / measure(term.measure, current, term.region)
+    if any(abs(value - 1.0) > 1e-3 for value in corrections.values()):
+        log.debug("carried-forward misses: %s", {key: round(value, 4) for key, value in corrections.items()})
+    return corrections
 
 
 def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) -> None:

@@ -257,7 +257,9 @@ class StepEnergy:
     """The energy of Eq. 11 for one step, assembled from a ruleset (see the module docstring)."""
 
     def __init__(self, transform_: StepTransform, ruleset, registry, mass_ratio: float, measure: Measure,
-                 on_trial: Callable[[int, float], None] | None = None):
+                 on_trial: Callable[[int, float], None] | None = None,
+                 corrections: Mapping[str, float] | None = None,
+                 constraint_reference: tuple[Body, float] | None = None):
         self.transform = transform_
         self.on_trial = on_trial
         self.ruleset = ruleset
@@ -268,7 +270,13 @@ class StepEnergy:
         self.constraints = [(use, registry.constraint(use.name)) for use in ruleset.constraints]
         start = transform_.body
         self.initial = {term.id: measure(term.measure, start, term.region) for term in self.terms}
-        self.targets = {term.id: self.initial[term.id] * self.mass_ratio ** term.exponent for term in self.terms}
+        # q* = q_0 · r^e, times what the earlier steps of the run left over (``corrections``).
+        corrections = corrections or {}
+        self.targets = {term.id: self.initial[term.id] * self.mass_ratio ** term.exponent
+                        * corrections.get(term.id, 1.0) for term in self.terms}
+        # Constraints compare a trial with this body at this mass ratio: the step's start and r,
+        # or the run's input and the ratio reached (see solve_step).
+        self.constraint_reference = constraint_reference or (start, self.mass_ratio)
         self.evaluations: list[Evaluation] = []
         self.best: Evaluation | None = None
 
@@ -281,7 +289,8 @@ class StepEnergy:
             residual = value / self.targets[term.id] - 1.0            # (q(x') − q*) / q*
             residuals[term.id] = residual
             vector.append(math.sqrt(term.weight) * residual)
-        context = ConstraintContext(self.transform.body, body, self.mass_ratio, self.measure)
+        reference, ratio = self.constraint_reference
+        context = ConstraintContext(reference, body, ratio, self.measure)
         for use, spec in self.constraints:
             values = spec.residuals(context, spec.complete_parameters(use.parameters))
             for name, residual in values.items():
@@ -424,6 +433,8 @@ def solve_step(
     start: np.ndarray | None = None,
     jacobian: np.ndarray | None = None,
     on_trial: Callable[[int, float], None] | None = None,
+    corrections: Mapping[str, float] | None = None,
+    constraint_reference: tuple[Body, float] | None = None,
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
@@ -431,13 +442,16 @@ def solve_step(
     basis, ``mass_ratio`` the step's r. ``start`` overrides the starting point (default s = r^(1/3),
     α = 0); ``jacobian`` (from the previous step's solution) saves the finite differences.
     ``on_trial(count, misfit)`` is told of every trial mesh measured (misfit: the best so far).
+    ``corrections`` multiplies terms' targets by id (the run's carried-forward misses, see
+    :func:`allorules.biology_scaling.scale_with_ruleset`); ``constraint_reference`` = (body, ratio)
+    that constraints compare a trial with (default: the step's start and ``mass_ratio``).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions)
     step = StepTransform.of(body, basis, regions, settings.transform)
-    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial)
+    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference)
 
     count = 2 + len(regions)
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)

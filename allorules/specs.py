@@ -99,9 +99,11 @@ class ParameterSpec:
 class ConstraintContext:
     """What a constraint sees during one scaling step.
 
-    ``initial`` is the mesh at the start of the step, ``candidate`` the trial mesh,
-    ``mass_ratio`` the step's target body-mass ratio r and ``measure(name, body, region)``
-    evaluates any registered measure (cached by the solver).
+    ``initial`` is the run's input mesh, ``candidate`` the trial mesh, ``mass_ratio`` the
+    body-mass ratio the run will have reached after this step (R at the last step), so a residual
+    is the whole run's so far and misses of earlier steps do not add up; ``measure(name, body,
+    region)`` evaluates any registered measure (cached by the solver). ``solver.solve_step`` used
+    alone passes the step's start mesh and r.
     """
 
     initial: "Body"
