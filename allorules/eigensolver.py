@@ -97,7 +97,7 @@ def smallest_eigenpairs(
 
     ``initial`` (an earlier basis of a nearby mesh with the same connectivity, (n, m)) speeds
     up the solve; ``progress(done, total)`` is called as eigenpairs are accepted. ``method`` is
-    ``"auto"`` (dense for small meshes, one Lanczos run for at most 32 pairs, else bands),
+    ``"auto"`` (dense for small meshes, else bands),
     ``"dense"``, ``"bands"`` or ``"eigsh"``.
     Returns ``(eigenvalues, eigenvectors)`` with eigenvalues ascending and
     ``vectors.T @ diag(mass) @ vectors = I``; each eigenvector's largest-magnitude entry is
@@ -108,8 +108,10 @@ def smallest_eigenpairs(
         raise ValueError(f"count must be between 1 and {n}, got {count}")
     mass = np.asarray(mass, dtype=np.float64)
     if method == "auto":
-        # A handful of pairs (a Fiedler vector) is one Lanczos run; many pairs go by bands.
-        method = "dense" if n <= DENSE_LIMIT or count >= n // 3 else "eigsh" if count <= 32 else "bands"
+        # Bands even for a handful of pairs: one Lanczos run (eigsh) can miss a copy of a repeated
+        # eigenvalue (seen on the icosphere, 20 pairs ending inside a cluster), the bands' inertia
+        # count cannot.
+        method = "dense" if n <= DENSE_LIMIT or count >= n // 3 else "bands"
     if method == "dense" or count >= n - 1:
         eigenvalues, vectors = scipy.linalg.eigh(
             stiffness.toarray(), np.diag(mass), subset_by_index=[0, count - 1]
@@ -509,17 +511,18 @@ class _BandSolver:
 
 class _ColumnStore:
     """The accepted eigenvectors, written once into one array as bands are accepted, so that the
-    basis is never held twice (peak memory, docs/benchmarks.md)."""
+    basis is never held twice (peak memory, docs/benchmarks.md). Fortran order: each vector is
+    contiguous, so the previous band's vectors deflate the next band without a copy."""
 
     def __init__(self, rows: int, capacity: int):
-        self.columns = np.empty((rows, capacity))
+        self.columns = np.empty((rows, capacity), order="F")
         self.used = 0
 
     def append(self, vectors: np.ndarray) -> np.ndarray:
         """Store ``vectors`` after what is there; returns the stored copy (a view)."""
         width = vectors.shape[1]
         if self.used + width > self.columns.shape[1]:       # a band accepted more than planned
-            grown = np.empty((self.columns.shape[0], self.used + width + 64))
+            grown = np.empty((self.columns.shape[0], self.used + width + 64), order="F")
             grown[:, :self.used] = self.columns[:, :self.used]
             self.columns = grown
         self.columns[:, self.used:self.used + width] = vectors
@@ -527,11 +530,26 @@ class _ColumnStore:
         return self.columns[:, self.used - width:self.used]
 
     def ordered(self, order: np.ndarray) -> np.ndarray:
-        """Columns ``order`` in that order, permuted in place a slab of rows at a time."""
-        slabs = _row_slabs(*self.columns.shape)
-        for start in slabs:
-            slab = self.columns[start:start + slabs.step]
-            slab[:, :len(order)] = slab[:, order]
+        """Columns ``order`` (distinct indices below ``used``) in that order, moved in place
+        along the cycles of the permutation, one column of scratch."""
+        order = np.asarray(order, dtype=np.int64)
+        unused = np.setdiff1d(np.arange(self.used), order)
+        source = np.concatenate([order, unused])          # column j takes column source[j]
+        done = np.zeros(self.used, dtype=bool)
+        for first in range(self.used):
+            if done[first] or source[first] == first:
+                done[first] = True
+                continue
+            saved = self.columns[:, first].copy()
+            target = first
+            while True:
+                done[target] = True
+                origin = source[target]
+                if origin == first:
+                    self.columns[:, target] = saved
+                    break
+                self.columns[:, target] = self.columns[:, origin]
+                target = origin
         return self.columns[:, :len(order)]
 
 

@@ -202,3 +202,22 @@ def test_rounding_noise_is_not_a_new_krylov_direction():
     assert orthonormal.shape[1] == 2
     np.testing.assert_allclose(orthonormal.T @ (mass[:, None] * orthonormal), np.eye(2), atol=1e-12)
     np.testing.assert_allclose(orthonormal @ factor, block, atol=1e-12)
+
+
+def test_accepted_vectors_are_put_in_order_in_place():
+    """The store the bands write into gathers any subset of its columns, in any order."""
+    from allorules.eigensolver import _ColumnStore
+
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        rows, used = int(rng.integers(1, 6)), int(rng.integers(1, 12))
+        store = _ColumnStore(rows, int(rng.integers(1, 12)))   # too small at times: it grows
+        data = rng.standard_normal((rows, used))
+        written = 0
+        while written < used:
+            width = int(rng.integers(1, used - written + 1))
+            stored = store.append(data[:, written:written + width])
+            np.testing.assert_array_equal(stored, data[:, written:written + width])
+            written += width
+        order = rng.permutation(used)[:int(rng.integers(1, used + 1))]
+        np.testing.assert_array_equal(store.ordered(order), data[:, order])
