@@ -305,29 +305,21 @@ class _BandSolver:
             return None
         return self.initial[:, inside] @ (1.0 / self.initial_norms[inside])
 
-    def lanczos(self, factor: _ShiftedFactor, k: int, deflate: np.ndarray | None = None):
-        """The ``k`` eigenpairs nearest σ by implicitly restarted Lanczos (ARPACK) on the
-        factorisation, ascending. With ``deflate`` (D-orthonormal columns U) the operator is
-        P S P with P = I − U Uᵀ D, so pairs already found are not found again."""
-        k = min(k, self.n - 2 - (0 if deflate is None else deflate.shape[1]))
-        mass = self.mass
+    def deflated_lanczos(self, factor: _ShiftedFactor, k: int, deflate: np.ndarray):
+        """The ``k`` eigenpairs nearest σ that are not in the span of ``deflate`` (D-orthonormal
+        columns U), ascending: implicitly restarted Lanczos (ARPACK) on P S P with
+        P = I − U Uᵀ D, so pairs already found are not found again."""
+        k = min(k, self.n - 2 - deflate.shape[1])
+        mass_deflate = self.mass[:, None] * deflate
 
-        if deflate is None:
-            def solve(y: np.ndarray) -> np.ndarray:
-                self.solves += 1
-                return factor.solve(y)
-        else:
-            mass_deflate = mass[:, None] * deflate
-
-            def solve(y: np.ndarray) -> np.ndarray:  # ARPACK passes y = D x
-                self.solves += 1
-                z = factor.solve(y - mass_deflate @ (deflate.T @ y))
-                return z - deflate @ (mass_deflate.T @ z)
+        def solve(y: np.ndarray) -> np.ndarray:  # ARPACK passes y = D x
+            self.solves += 1
+            z = factor.solve(y - mass_deflate @ (deflate.T @ y))
+            return z - deflate @ (mass_deflate.T @ z)
 
         inverse = scipy.sparse.linalg.LinearOperator((self.n, self.n), matvec=solve, dtype=np.float64)
         start = self.rng.standard_normal(self.n)
-        if deflate is not None:
-            start -= deflate @ (deflate.T @ (mass * start))
+        start -= deflate @ (deflate.T @ (self.mass * start))
         values, vectors = scipy.sparse.linalg.eigsh(
             self.stiffness, k=k, M=self.mass_matrix, sigma=factor.shift, which="LM", OPinv=inverse, v0=start,
         )
@@ -402,12 +394,9 @@ class _BandSolver:
             if size >= check_at or not grows:
                 check_at = size + max(width, 8, size // 8)
                 outcome = self._converged_pairs(factor, lower, target_below, wanted_above, basis[:, :size],
-                                                projection[:size, :size], next_block, link, block.shape[1])
-                if outcome is not None or not grows:
-                    if outcome is None:
-                        outcome = self._converged_pairs(factor, lower, target_below, wanted_above, basis[:, :size],
-                                                        projection[:size, :size], next_block, link,
-                                                        block.shape[1], final=True)
+                                                projection[:size, :size], next_block, link, block.shape[1],
+                                                final=not grows)
+                if outcome is not None:
                     return outcome
             projection[size:size + next_block.shape[1], size - block.shape[1]:size] = link
             basis[:, size:size + next_block.shape[1]] = next_block
@@ -468,7 +457,7 @@ class _BandSolver:
         k = missing + max(8, spare)
         for _ in range(6):
             deflate = _orthonormalise(np.hstack(found + vectors_out), None, self.mass)
-            values, vectors = self.lanczos(factor, k, deflate)
+            values, vectors = self.deflated_lanczos(factor, k, deflate)
             pick = np.flatnonzero((values < factor.shift) & (values >= lowest))[:missing]
             if len(pick):
                 values_out.append(values[pick])
@@ -501,7 +490,6 @@ class _BandSolver:
             vectors = np.hstack([extra_vectors, vectors])
             order = np.argsort(values)
             values, vectors = values[order], vectors[:, order]
-            below = target_below
             below = int(np.count_nonzero(values < shift))
         # The outermost pairs found above σ may be part of a cluster that continues beyond the
         # window: cut in a wide gap near the top of the run above σ.

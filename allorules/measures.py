@@ -42,7 +42,7 @@ from .sections import (
     submesh,
 )
 
-from .preparation import HoleCaps, boundary_edges, cap_holes, hole_caps
+from .preparation import HoleCaps, boundary_edge_loops, boundary_edges, cap_holes, hole_caps
 
 LIMB_REGIONS = ("forelimbs", "hindlimbs")
 CHEST_LIMIT_MARGIN = 0.01   # heart girth's last candidate: this share of the chest's length behind the forelimbs
@@ -195,27 +195,13 @@ def part_hole_caps(faces: np.ndarray, vertex_index: np.ndarray, body_hole_edges:
     holes of the surface, not openings cut by the labels. A loop that is partly a cut stays open,
     and so does every loop of a part that has no cut at all (a whole open tube labelled as one
     region: its holes are where it ends)."""
-    faces = np.asarray(faces, dtype=np.int64)
-    count = len(vertex_index)
-    edges = boundary_edges(faces)
-    if len(edges) == 0:
-        return HoleCaps(count, faces, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
-    nodes, local = np.unique(edges, return_inverse=True)
-    local = local.reshape(-1, 2)
-    graph = sparse.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(nodes),) * 2)
-    loop_count, loop_of_node = csgraph.connected_components(graph, directed=False)
+    edges, edge_loop, loop_count = boundary_edge_loops(faces)
     on_body_boundary = np.isin(_edge_keys(np.asarray(vertex_index)[edges], body_vertex_count), body_hole_edges)
-    edge_loop = loop_of_node[local[:, 0]]
     is_hole = np.ones(loop_count, dtype=bool)
     np.logical_and.at(is_hole, edge_loop, on_body_boundary)
     if is_hole.all():   # no cut at all (the part is a whole piece of the body): its holes are its ends
         is_hole[:] = False
-    hole_number = np.cumsum(is_hole) - 1                     # holes renumbered 0 … k−1
-    kept_nodes = is_hole[loop_of_node]
-    kept_edges = is_hole[edge_loop]
-    # Each hole edge (a, b), as its face walks it, gets the cap triangle (b, a, centroid) (cap_holes).
-    caps = np.column_stack([edges[kept_edges, 1], edges[kept_edges, 0], count + hole_number[edge_loop[kept_edges]]])
-    return HoleCaps(count, np.vstack([faces, caps]), nodes[kept_nodes], hole_number[loop_of_node[kept_nodes]], int(is_hole.sum()))
+    return hole_caps(faces, len(vertex_index), capped=is_hole)
 
 
 def region_parts(body: Body, region: str) -> list[RegionPart]:

@@ -395,19 +395,35 @@ class HoleCaps:
         return np.vstack([vertices, centroids]), self.faces
 
 
-def hole_caps(faces: np.ndarray, vertex_count: int) -> HoleCaps:
-    """The plan that caps every boundary loop of ``faces`` (see :func:`cap_holes`)."""
-    faces = np.asarray(faces, dtype=np.int64)
-    edges = boundary_edges(faces)
+def boundary_edge_loops(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The boundary edges of ``faces`` (each as its face walks it), the loop each belongs to
+    (connected components of the boundary) and the number of loops."""
+    edges = boundary_edges(np.asarray(faces, dtype=np.int64))
     if len(edges) == 0:
-        return HoleCaps(vertex_count, faces, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+        return edges, np.zeros(0, dtype=np.int64), 0
     nodes, local = np.unique(edges, return_inverse=True)
     local = local.reshape(-1, 2)
     graph = sparse.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(nodes),) * 2)
     loop_count, loop_of_node = csgraph.connected_components(graph, directed=False)
-    centre_index = vertex_count + loop_of_node[local[:, 0]]
-    caps = np.column_stack([edges[:, 1], edges[:, 0], centre_index])
-    return HoleCaps(vertex_count, np.vstack([faces, caps]), nodes, loop_of_node, int(loop_count))
+    return edges, loop_of_node[local[:, 0]], int(loop_count)
+
+
+def hole_caps(faces: np.ndarray, vertex_count: int, capped: np.ndarray | None = None) -> HoleCaps:
+    """The plan that caps every boundary loop of ``faces`` (see :func:`cap_holes`), or only the
+    loops of :func:`boundary_edge_loops` that ``capped`` (a mask over them) selects."""
+    faces = np.asarray(faces, dtype=np.int64)
+    edges, edge_loop, loop_count = boundary_edge_loops(faces)
+    capped = np.ones(loop_count, dtype=bool) if capped is None else np.asarray(capped, dtype=bool)
+    if not capped.any():
+        return HoleCaps(vertex_count, faces, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+    number = np.cumsum(capped) - 1                           # capped loops renumbered 0 … k−1
+    kept = capped[edge_loop]
+    edges, loop_of_edge = edges[kept], number[edge_loop[kept]]
+    # Each boundary edge (a, b), as its face walks it, gets the cap triangle (b, a, centroid).
+    caps = np.column_stack([edges[:, 1], edges[:, 0], vertex_count + loop_of_edge])
+    nodes, first = np.unique(edges.ravel(), return_index=True)
+    loop_of_node = np.repeat(loop_of_edge, 2)[first]
+    return HoleCaps(vertex_count, np.vstack([faces, caps]), nodes, loop_of_node, int(capped.sum()))
 
 
 def cap_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

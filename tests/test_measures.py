@@ -437,13 +437,18 @@ def test_quadruped_peak_stress_is_defined_and_scales_isometrically(animal):
         assert peak_stress(scaled) == pytest.approx(scale * sigma, rel=1e-6)
 
 
+def labelled_real_mesh(path):
+    """A real mesh of shared/meshes, prepared and labelled automatically."""
+    segmentation = pytest.importorskip("allorules.segmentation")
+    preparation = pytest.importorskip("allorules.preparation")
+    prepared = preparation.prepare_mesh(path)
+    return segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+
+
 @pytest.mark.slow
 @pytest.mark.shared_meshes
 def test_real_horse_labelled_automatically_is_measurable(shared_meshes):
-    segmentation = pytest.importorskip("allorules.segmentation")
-    preparation = pytest.importorskip("allorules.preparation")
-    prepared = preparation.prepare_mesh(shared_meshes / "horse.obj")
-    body = segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    body = labelled_real_mesh(shared_meshes / "horse.obj")
     mass = body_mass(body)
     assert np.isfinite(mass) and mass > 0
     for region in ("forelimbs", "hindlimbs"):
@@ -645,10 +650,7 @@ def test_real_horse_foreleg_length_follows_a_small_shear_without_jumps(shared_me
     # the case of issue 6: the real horse's left fore hoof is open underneath. Between these two
     # shears its skeleton lost its tip (a level crossed the hole's rim) and ended at the hole's
     # centroid: −8.3 %. A shear of 0.01 changes no length by more than about 1 %.
-    segmentation = pytest.importorskip("allorules.segmentation")
-    preparation = pytest.importorskip("allorules.preparation")
-    prepared = preparation.prepare_mesh(shared_meshes / "horse.obj")
-    body = segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    body = labelled_real_mesh(shared_meshes / "horse.obj")
     before, after = _sheared(body, 0.16), _sheared(body, 0.17)
     legs_before = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(before, "forelimbs")]
     legs_after = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(after, "forelimbs")]
@@ -661,10 +663,7 @@ def test_real_horse_foreleg_length_follows_a_small_shear_without_jumps(shared_me
 def test_real_camel_forelegs_touching_at_the_knees_are_measured_as_two_legs(shared_meshes):
     # the mesh joins the camel's forelegs at the knees and at the top, so the labels make one
     # piece with two feet: it used to be measured as one 'leg' of 92.9 (hindlegs: 52.2)
-    segmentation = pytest.importorskip("allorules.segmentation")
-    preparation = pytest.importorskip("allorules.preparation")
-    prepared = preparation.prepare_mesh(shared_meshes / "camel.obj")
-    body = segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    body = labelled_real_mesh(shared_meshes / "camel.obj")
     legs = measures.region_parts(body, "forelimbs")
     assert len(legs) == 2
     assert legs[1].area == pytest.approx(legs[0].area, rel=0.1)
