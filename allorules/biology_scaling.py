@@ -44,6 +44,7 @@ from .basis import HarmonicBasis
 from .body import Body
 from .errors import AllorulesError, ScalingError, SegmentationError
 from .global_scaling import ScalingResult, StressGauge, check_mass_ratio, count_flipped_faces, step_basis, step_ratios
+from .posture import restore_limb_axes
 from .progress import RunProgress
 from .solver import StepTransform, cached_measure, energy_terms, solve_step
 from .specs import ConstraintContext
@@ -132,11 +133,13 @@ class BiologyScalingResult(ScalingResult):
     stress_ratio: float | None = None
     transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
     posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift
+    posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.posture)
 
     def details(self) -> dict:
         return {
             "ruleset": self.ruleset,
             "transform": self.transform,
+            "posture_setting": self.posture_setting,
             "rules": [rule.as_dict() for rule in self.rules],
             "constraints": {key: float(value) for key, value in self.constraints.items()},
             "posture": self.posture,
@@ -214,7 +217,8 @@ def scale_with_ruleset(
     gauge = _stress_gauge(initial, registry, section)
     measure = cached_measure(registry, {"stress": gauge.stress} if gauge else None)
     result = BiologyScalingResult(body=initial, ruleset=ruleset.name, target_mass_ratio=target,
-                                  section=gauge.describe() if gauge else None, transform=ruleset.solver.transform)
+                                  section=gauge.describe() if gauge else None, transform=ruleset.solver.transform,
+                                  posture_setting=ruleset.solver.posture)
 
     current, basis, jacobian, start = initial, None, None, None
     terms = energy_terms(ruleset)
@@ -242,7 +246,7 @@ def scale_with_ruleset(
         jacobian, start = solution.jacobian, solution.variables
         solved = time.perf_counter()
         following = _fresh(solution.body)
-        if ruleset.solver.posture == "keep":
+        if ruleset.solver.posture in ("keep", "upright"):
             following = following.with_vertices(restore_limb_axes(current, following))
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
         mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
@@ -332,64 +336,6 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         result.messages.append(
             f"not converged: {len(messages)} target(s) missed beyond the tolerances (exponent ±{EXPONENT_TOLERANCE}, "
             f"mass ±{100 * MASS_TOLERANCE:g}%, constraints ±{100 * CONSTRAINT_TOLERANCE:g}%)")
-
-
-# ---------------------------------------------------------------------------------------------
-# Posture
-
-
-POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
-
-
-def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
-    """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
-    when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a limb
-    turned upside down is not a lean to straighten)."""
-    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
-    axis, cosine = np.cross(start, end), float(start @ end)
-    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
-        return None
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
-
-
-def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
-    """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
-
-    Eq. 9 changes a limb's modes by a different factor than the body's, so a step can meet every
-    rule while the leg leans a degree or two (docs/biology-scaling.md, posture). Per limb part:
-    R = the smallest rotation taking its axis on ``moved`` (junction centroid → foot tip) back to
-    its axis on ``reference``; vertices turn by R about the junction, x' = x + w·(J + R(x − J) − x),
-    with w rising smoothly (smoothstep) from 0 at the junction to 1 at ``POSTURE_BLEND`` of the
-    limb's length along its own field, so the shoulder stays joined to the body. Rigid below the
-    blend: lengths, girths and the load-bearing section are kept. Bodies without limbs come back
-    unchanged.
-    """
-    from .measures import LIMB_REGIONS, carry_fields, limb_sections
-
-    vertices = moved.vertices.copy()
-    regions = [region for region in LIMB_REGIONS if reference.has_region(region) and reference.labels is not None
-               and reference.region_mask(region).any()]
-    limbs = {region: limb_sections(reference, region) for region in regions}   # before carrying: the same limbs
-    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
-    for region in regions:
-        for before, after in zip(limbs[region], limb_sections(carried, region)):
-            if not before.sections:
-                continue
-            rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
-            if rotation is None:
-                continue
-            fractions = np.array([section.fraction for section in before.sections])
-            lowest = float(before.field.min())
-            blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
-            if blend_level <= lowest:
-                continue
-            ramp = np.clip((before.field - lowest) / (blend_level - lowest), 0.0, 1.0)
-            weight = ramp * ramp * (3.0 - 2.0 * ramp)                    # smoothstep
-            index = after.mesh.vertex_index
-            turned = after.junction + (vertices[index] - after.junction) @ rotation.T
-            vertices[index] += weight[:, None] * (turned - vertices[index])
-    return vertices
 
 
 # ---------------------------------------------------------------------------------------------

@@ -533,6 +533,13 @@ def peak_stress(body: Body, *, override: SectionChoice | None = None) -> float:
 # Posture: how the limbs stand
 
 
+def stance_down(limbs: list[Limb]) -> np.ndarray:
+    """The unit direction the legs point, shoulders to feet (the sum of their junction → tip axes):
+    'down' for an animal standing on them, whatever the mesh's orientation."""
+    down = np.sum([limb.tip - limb.junction for limb in limbs], axis=0)
+    return down / np.linalg.norm(down)
+
+
 def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     """How the limbs' stance changed from ``before`` to ``after`` (same faces and labels).
 
@@ -548,8 +555,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     carried = carry_fields(before, after.with_vertices(after.vertices))
     limbs_after = [limb for region in LIMB_REGIONS if carried.has_region(region) for limb in limb_sections(carried, region)]
 
-    down = np.sum([limb.tip - limb.junction for limb in limbs_before], axis=0)
-    down /= np.linalg.norm(down)
+    down = stance_down(limbs_before)
 
     def stance(limbs: list[Limb]) -> tuple[np.ndarray, np.ndarray]:
         axes = np.array([limb.tip - limb.junction for limb in limbs])

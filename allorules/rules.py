@@ -86,7 +86,7 @@ class SolverSettings:
     scale_bounds: tuple[float, float] = (0.5, 2.0)
     alpha_bounds: tuple[float, float] = (-1.0, 1.0)
     transform: str = "per-axis"     # METHOD §5, in the animal's own axes; or "per-mode" (docs/biology-scaling.md)
-    posture: str = "keep"           # or "free": turn limbs back to their direction after each step
+    posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.posture)
 
 
 @dataclass(frozen=True)
@@ -855,11 +855,14 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
             problems.append(RulesetError(f"solver.transform {values['transform']!r} is not a transform form; use "
                                          f"{' or '.join(TRANSFORM_FORMS)}", where.get("transform", whole)))
     if "posture" in values:
-        if values["posture"] in ("keep", "free"):
+        from .posture import POSTURES
+
+        if values["posture"] in POSTURES:
             settings["posture"] = values["posture"]
         else:
-            problems.append(RulesetError(f"solver.posture {values['posture']!r} is neither 'keep' (turn limbs back to "
-                                         "their direction after each step) nor 'free'", where.get("posture", whole)))
+            problems.append(RulesetError(f"solver.posture {values['posture']!r} is not one of 'keep' (legs upright and "
+                                         "feet on the ground), 'upright' (legs upright) or 'free' (as Eq. 9 leaves them)",
+                                         where.get("posture", whole)))
     if "algorithm" in values:
         algorithm = values["algorithm"]
         try:

@@ -12,6 +12,9 @@ mode 0 untouched, detail beyond the m-th mode added back × s
 axes of "per axis" are the animal's own (forward, up, side: :func:`anatomical_axes`), so a turned
 mesh gives the same animal turned; ``solver.transform: per-mode`` is the alternative on each
 mode's vector length (docs/biology-scaling.md).
+With ``solver.posture: keep`` the transform then puts every foot back at its height above the
+others (:class:`allorules.posture.FootContact`: legs moved rigidly along their direction), so the
+solver measures, and meets its targets on, the animal standing.
 Region coefficients are taken of the vertices *relative to the body's area-weighted centroid*
 (the point mode 0 represents), so that the gate G, and with it the result, does not depend on
 where the mesh sits in space (Eq. 5 on raw coordinates would).
@@ -72,6 +75,7 @@ import numpy as np
 from .basis import HarmonicBasis, transform
 from .body import Body
 from .errors import AllorulesError, ScalingError
+from .posture import FootContact
 from .scaling import (
     apply_to_mesh,
     dimensionless,
@@ -198,9 +202,11 @@ class StepTransform:
     region_us: list[np.ndarray]
     form: str = "per-axis"
     axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
+    feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.posture)
 
     @classmethod
-    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis") -> "StepTransform":
+    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
+           keep_feet: bool = False) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
         coefficients = transform(basis, body.vertices)
@@ -216,10 +222,11 @@ class StepTransform:
             region_coefficients = transform(basis, centred * mask[:, None])            # x̃_seg
             region_us.append(region_coefficients @ axes.T / c if form == "per-axis"
                              else mode_shares(region_coefficients, coefficients, c))
-        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes)
+        feet = FootContact.of(body) if keep_feet else None
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept)."""
+        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back)."""
         scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
         if self.form == "per-axis":
@@ -228,7 +235,8 @@ class StepTransform:
             new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
         else:
             new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
-        return apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        return vertices if self.feet is None else self.feet.apply(vertices, scale)
 
     def body_at(self, variables: np.ndarray) -> Body:
         from .measures import carry_fields
@@ -450,19 +458,24 @@ def solve_step(
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions)
-    step = StepTransform.of(body, basis, regions, settings.transform)
+    step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep")
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference)
 
     count = 2 + len(regions)
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)
     upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (count - 1)], dtype=float)
-    if start is None:
-        start = np.zeros(count)
-        start[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
-    start = np.clip(np.asarray(start, dtype=float), lower, upper)
+    isometric = np.zeros(count)
+    isometric[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
+    start = isometric if start is None else np.clip(np.asarray(start, dtype=float), lower, upper)
     budget = int(settings.max_evaluations)
 
     first = energy.evaluate(start)
+    if first.vector is None and not np.array_equal(start, isometric):
+        # the previous step's point does not fit this mesh (an exponent turns negative): start afresh
+        log.debug("step r=%.4f: the given start cannot be measured (%s); starting from isometric scaling",
+                  mass_ratio, first.failure)
+        jacobian = None
+        first = energy.evaluate(isometric)
     if first.vector is None:
         raise ScalingError(f"the starting mesh of this step cannot be measured: {first.failure}")
     status = "energy target reached"

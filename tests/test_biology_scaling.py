@@ -85,6 +85,10 @@ def test_quadruped_ruleset_meets_every_target(animal, registry, ratio):
         assert abs(rule.achieved_exponent - rule.exponent) <= 0.02, rule
     assert result.mass_ratio == pytest.approx(ratio, rel=0.01)
     assert result.stress_ratio == pytest.approx(1.0, abs=0.02)
+    # posture keep (the default): legs upright and every foot on the ground (upright only, the
+    # hind feet rose 20 % of a leg at R = 2)
+    for limb, change in result.posture.items():
+        assert change["tilt_degrees"] < 1.0 and abs(change["foot_lift"]) < 0.02, (limb, change)
     # the reported figures are what an independent measurement of the output gives
     body = animal.body()
     out = body.with_vertices(result.body.vertices.copy())          # same labels and frame, nothing cached
@@ -265,6 +269,21 @@ def test_cli_local_scaling_writes_mesh_and_report(mesh_files, tmp_path, capsys):
     assert not np.allclose(trimesh.load(other, process=False).vertices, trimesh.load(out, process=False).vertices)
 
 
+def test_cli_posture_overrides_the_ruleset(mesh_files, tmp_path):
+    from allorules.cli import main
+
+    mesh, labels = mesh_files
+    reports = {}
+    for posture in ("free", "keep"):
+        out, report = tmp_path / f"{posture}.obj", tmp_path / f"{posture}.json"
+        assert main(["scale", str(mesh), "--ruleset", "quadruped", "--mass-ratio", "1.1", "--segmentation", str(labels),
+                     "--modes", str(MODES), "--no-cache", "--posture", posture, "-o", str(out), "--report", str(report)]) == 0
+        reports[posture] = json.loads(report.read_text())
+        assert reports[posture]["posture_setting"] == posture
+    lift = {posture: max(abs(change["foot_lift"]) for change in data["posture"].values()) for posture, data in reports.items()}
+    assert lift["keep"] < 0.002 < lift["free"]
+
+
 def test_cli_unconverged_run_fails_without_writing_the_mesh(mesh_files, tmp_path, registry, capsys):
     from allorules.cli import main
 
@@ -326,33 +345,6 @@ def test_local_scaling_of_a_turned_mesh_is_the_same_edit_turned(animal, basis):
             edited = scale_region(original, "forelimbs", 0.5, basis=basis, form=form).vertices
             again = scale_region(turned_version, "forelimbs", 0.5, basis=turned_basis, form=form).vertices @ rotation
             assert np.linalg.norm(again - edited, axis=1).max() / diagonal < 1e-9, form
-
-
-def test_restore_limb_axes_turns_a_leaning_leg_back(animal):
-    from scipy.spatial.transform import Rotation
-
-    from allorules.biology_scaling import restore_limb_axes
-    from allorules.measures import limb_sections, posture_change
-
-    body = animal.body()
-    assert np.array_equal(restore_limb_axes(body, body.with_vertices(body.vertices)), body.vertices)
-    leg = limb_sections(body, "hindlimbs")[0]
-    leaning = body.vertices.copy()
-    index = leg.mesh.vertex_index
-    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
-    leaning[index] = (leaning[index] - leg.junction) @ turn.T + leg.junction     # rigidly, about the hip
-    before = posture_change(body, body.with_vertices(leaning))
-    axis = leg.tip - leg.junction
-    expected = np.degrees(np.arccos(axis @ turn @ axis / (axis @ axis)))      # 6° less its splay out of the turn's plane
-    assert 5.9 < expected <= 6.0
-    assert max(change["tilt_degrees"] for change in before.values()) == pytest.approx(expected, abs=1e-6)
-    restored = restore_limb_axes(body, body.with_vertices(leaning))
-    after = posture_change(body, body.with_vertices(restored))
-    assert max(change["tilt_degrees"] for change in after.values()) < 0.01        # from 6° (the hip ring blends)
-    assert max(abs(change["foot_lift"]) for change in after.values()) < 1e-3
-    outside = np.ones(len(body.vertices), dtype=bool)
-    outside[index] = False
-    assert np.array_equal(restored[outside], leaning[outside])                    # only that leg moved
 
 
 @pytest.mark.slow

@@ -14,7 +14,6 @@ from allorules.errors import RulesetError
 from allorules.plugins import registry_for
 from allorules.rules import (
     Rule,
-    Ruleset,
     RulesetProblems,
     check_ruleset,
     list_rulesets,
@@ -370,7 +369,7 @@ def test_solver_errors(tmp_path, registry):
         "solver: {algorithm: LD_MMA}": "not a derivative-free nlopt algorithm",
         "solver: {relative_tolerance: 0}": "greater than 0",
         "solver: {transform: per-vertex}": "per-mode",
-        "solver: {posture: upright}": "posture",
+        "solver: {posture: standing}": "posture",
     }
     for line, message in cases.items():
         _, problems = single_problem(tmp_path, MINIMAL + line + "\n", registry)
@@ -382,6 +381,8 @@ def test_transform_form_and_posture_are_the_methods_unless_the_ruleset_says(tmp_
     assert (solver.transform, solver.posture) == ("per-axis", "keep")
     ruleset = load_ruleset(write(tmp_path, "axis.yaml", MINIMAL + "solver: {transform: per-mode, posture: free}\n"), registry)
     assert (ruleset.solver.transform, ruleset.solver.posture) == ("per-mode", "free")
+    ruleset = load_ruleset(write(tmp_path, "upright.yaml", MINIMAL + "solver: {posture: upright}\n"), registry)
+    assert ruleset.solver.posture == "upright"
 
 
 def test_numbers_without_a_dot_are_numbers(tmp_path, registry):

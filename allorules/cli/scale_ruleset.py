@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ("--transform", dict(choices=("per-mode", "per-axis"), help="how the power law acts on the coefficients: "
                              "per-axis (default; METHOD §5, in the animal's own axes) or per-mode (on each mode's vector "
                              "length); overrides the ruleset's solver.transform")),
+        ("--posture", dict(choices=("keep", "upright", "free"), help="the stance through the steps: keep (default; legs "
+                           "upright and feet on the ground), upright (legs only) or free (as Eq. 9 leaves them); "
+                           "overrides the ruleset's solver.posture")),
         ("--mass-ratio", dict(type=float, metavar="R", help="total body-mass ratio (2 doubles the mass)")),
         ("-o", dict(dest="output", metavar="OUT", help="output mesh (format from the extension)")),
         ("--report", dict(metavar="REPORT.json", help="write the run's report as JSON")),
@@ -154,10 +157,11 @@ def _run_ruleset(arguments, prepared, body, mesh: Path, output: Path) -> int:
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     ruleset = override_exponents(ruleset, parse_rule_overrides(arguments.rule or []), registry)
-    if arguments.transform:
+    if arguments.transform or arguments.posture:
         from dataclasses import replace
 
-        ruleset = replace(ruleset, solver=replace(ruleset.solver, transform=arguments.transform))
+        ruleset = replace(ruleset, solver=replace(ruleset.solver, transform=arguments.transform or ruleset.solver.transform,
+                                                  posture=arguments.posture or ruleset.solver.posture))
     progress = run_progress("scaling steps")
     section = None
     if getattr(arguments, "section", None):

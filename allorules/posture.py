@@ -1,0 +1,204 @@
+"""The animal's stance through a run: legs upright and every foot on the ground (``solver.posture``).
+
+Eq. 9 changes a limb's modes by other factors than the body's, so a step can meet every rule and
+still leave a leg leaning, or a pair of feet off the ground (docs/biology-scaling.md, posture).
+No rule measures a direction or a height, so this module keeps them, without touching what the
+rules measure:
+
+* :class:`FootContact` is part of each step's transform (:class:`allorules.solver.StepTransform`):
+  after Eq. 9, each leg is moved rigidly up or down along the legs' direction so that the feet
+  keep the heights above one another they had at the step's start (scaled with the body); the
+  rest of the body follows in a harmonic blend of the legs' shifts. The solver measures, and so
+  meets its targets on, the mesh with the feet put back.
+* :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
+  after the step.
+
+``posture: keep`` (the default) does both, ``upright`` only the second, ``free`` neither (the
+paper's behaviour).
+
+Both move each leg as a rigid whole (the turn below a short blend at its top), so its length,
+girths and load-bearing section are what the step made them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
+from scipy.sparse.linalg import splu
+
+from .body import Body
+
+# solver.posture of a ruleset: legs upright and feet on the ground; legs upright only; neither.
+POSTURES = ("keep", "upright", "free")
+POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
+
+
+def _limbs(body: Body) -> list:
+    """The limb parts of ``body`` (every part of every limb region it has), junction → tip."""
+    from .measures import LIMB_REGIONS, limb_sections
+
+    return [limb for region in LIMB_REGIONS
+            if body.has_region(region) and body.labels is not None and body.region_mask(region).any()
+            for limb in limb_sections(body, region)]
+
+
+def _smoothstep(ramp: np.ndarray) -> np.ndarray:
+    ramp = np.clip(ramp, 0.0, 1.0)
+    return ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+# ---------------------------------------------------------------------------------------------
+# Feet on the ground
+
+
+@dataclass(frozen=True)
+class FootContact:
+    """How to put a moved body's feet back at the heights above one another it had.
+
+    ``feet[k]``: body vertices of leg k's foot (the leg beyond its last cross-section);
+    ``weights[k]``: how much each body vertex follows leg k's shift (1 on the leg, 0 on the
+    other legs, a harmonic blend in between: see :meth:`of`);
+    ``heights[k]``: the foot's height above the feet's mean, along ``down``, at the start.
+    """
+
+    down: np.ndarray
+    feet: tuple[np.ndarray, ...]
+    weights: np.ndarray          # (legs, vertices)
+    heights: np.ndarray          # (legs,)
+
+    @classmethod
+    def of(cls, body: Body) -> "FootContact | None":
+        """The feet of ``body`` as they stand; ``None`` for a body with fewer than two legs.
+
+        The weights are harmonic over the rest of the body (:func:`_harmonic_weights`): 1 on leg
+        k and 0 on the other legs, and in between the smoothest blend, so the torso follows the
+        legs' shifts without a crease and the weights sum to 1 everywhere. Each piece hanging
+        off the torso (the tail; the neck with the head) is one rigid node of that blend: it
+        moves as one, and is not bent or sheared.
+        """
+        from .measures import TORSO_REGIONS, stance_down
+
+        limbs = [limb for limb in _limbs(body) if limb.sections]
+        if len(limbs) < 2:
+            return None
+        on_leg = np.full(len(body.vertices), -1)
+        for k, limb in enumerate(limbs):
+            on_leg[limb.mesh.vertex_index] = k
+        torso = np.zeros(len(body.vertices), dtype=bool)
+        for region in TORSO_REGIONS:
+            if body.has_region(region):
+                torso |= body.region_mask(region)
+        torso &= on_leg < 0
+        if not torso.any():                 # no torso labelled: everything but the legs blends
+            torso = on_leg < 0
+        weights = _harmonic_weights(_conductances(body.vertices, body.faces), on_leg, torso, len(limbs))
+        feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)
+        down = stance_down(limbs)
+        contact = cls(down, feet, weights, np.zeros(len(limbs)))
+        return cls(down, feet, weights, contact.foot_heights(body.vertices))
+
+    def foot_heights(self, vertices: np.ndarray) -> np.ndarray:
+        """Each foot's height above the feet's mean, along −``down`` (its vertices' mean)."""
+        heights = np.array([-(vertices[foot] @ self.down).mean() for foot in self.feet])
+        return heights - heights.mean()
+
+    def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
+        """``vertices`` with each leg shifted along ``down`` so that the feet stand as at the start,
+        heights × ``scale`` (the step's isometric factor): x' = x + Σ_k w_k(x) δ_k · down with
+        δ_k = h_k(x) − scale · h_k(start). The shifts sum to zero, so the body does not sink."""
+        shift = self.foot_heights(vertices) - scale * self.heights
+        return vertices + np.outer(self.weights.T @ shift, self.down)
+
+
+def _harmonic_weights(conductance: sparse.csr_matrix, on_leg: np.ndarray, torso: np.ndarray, legs: int) -> np.ndarray:
+    """Per leg k, a weight on every vertex: 1 on leg k (``on_leg == k``), 0 on the other legs,
+    harmonic elsewhere (Σ_j c_ij (w_j − w_i) = 0, conductances c = 1 / edge length), with every
+    connected piece of what is neither leg nor ``torso`` one node (it moves as one). The weights
+    lie in [0, 1] (maximum principle) and sum to 1 wherever a leg can be reached; a piece that
+    reaches no leg gets 0."""
+    count = len(on_leg)
+    free = on_leg < 0
+    fixed = np.zeros((count, legs))
+    fixed[~free, on_leg[~free]] = 1.0
+    if not free.any():
+        return fixed.T
+    # the unknowns: one per torso vertex, one per piece hanging off it
+    node = np.full(count, -1)
+    node[torso] = np.arange(int(torso.sum()))
+    hanging = free & ~torso
+    if hanging.any():
+        keep = sparse.diags(hanging.astype(float))          # only the edges between hanging vertices
+        _, piece = csgraph.connected_components(keep @ conductance @ keep, directed=False)
+        _, pieces = np.unique(piece[hanging], return_inverse=True)
+        node[hanging] = int(torso.sum()) + pieces
+    unknowns = int(node.max()) + 1
+    rows = np.flatnonzero(free)
+    gather = sparse.csr_matrix((np.ones(len(rows)), (rows, node[rows])), shape=(count, unknowns))
+    laplacian = sparse.diags(np.asarray(conductance.sum(axis=1)).ravel()) - conductance
+    # Gᵀ L G w = −Gᵀ L w_fixed; the tiny diagonal keeps a piece that touches no leg solvable (at 0)
+    system = (gather.T @ laplacian @ gather).tocsc()
+    system = system + sparse.identity(unknowns, format="csc") * (1e-12 * system.diagonal().mean())
+    right = -(gather.T @ (laplacian @ fixed))
+    solved = splu(system).solve(np.ascontiguousarray(right))
+    return (fixed + gather @ solved).T
+
+
+def _conductances(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
+    """The mesh's edges as a symmetric sparse matrix of conductances 1 / edge length."""
+    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    conductance = 1.0 / np.maximum(lengths, np.finfo(float).tiny)     # a zero-length edge joins firmly
+    count = len(vertices)
+    upper = sparse.csr_matrix((conductance, (edges[:, 0], edges[:, 1])), shape=(count, count))
+    return sparse.csr_matrix(upper + upper.T)
+
+
+# ---------------------------------------------------------------------------------------------
+# Legs upright
+
+
+def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
+    """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
+    when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a limb
+    turned upside down is not a lean to straighten)."""
+    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
+    axis, cosine = np.cross(start, end), float(start @ end)
+    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
+        return None
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
+
+
+def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
+    """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
+
+    Per limb part: R = the smallest rotation taking its axis on ``moved`` (junction centroid →
+    foot tip) back to its axis on ``reference``; vertices turn by R about the junction,
+    x' = x + w·(J + R(x − J) − x), with w rising smoothly (smoothstep) from 0 at the junction to 1
+    at ``POSTURE_BLEND`` of the limb's length along its own field, so the shoulder stays joined to
+    the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
+    Bodies without limbs come back unchanged.
+    """
+    from .measures import carry_fields
+
+    vertices = moved.vertices.copy()
+    limbs = _limbs(reference)        # before carrying: the same limbs
+    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
+    for before, after in zip(limbs, _limbs(carried)):
+        if not before.sections:
+            continue
+        rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
+        if rotation is None:
+            continue
+        fractions = np.array([section.fraction for section in before.sections])
+        lowest = float(before.field.min())
+        blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
+        if blend_level <= lowest:
+            continue
+        weight = _smoothstep((before.field - lowest) / (blend_level - lowest))
+        index = after.mesh.vertex_index
+        turned = after.junction + (vertices[index] - after.junction) @ rotation.T
+        vertices[index] += weight[:, None] * (turned - vertices[index])
+    return vertices

@@ -1,0 +1,73 @@
+"""The stance a run ends with, for each ``solver.posture``: legs' lean and feet's lift.
+
+Run: .venv/bin/python benchmarks/bench_posture.py [--vertices N] [--modes M] [--picture PNG]
+
+The generated horse (1,500 vertices, 300 modes by default) with ``quadruped`` at R = 0.5 and 2,
+posture free, upright and keep. Prints, per run, whether it converged, the largest lean and the
+largest foot lift (docs/biology-scaling.md, posture), how much the back pitched (the chest's
+centroid against the abdomen's, positive: nose up), and draws the outputs side by side at the
+same length (default docs/images/posture.png). Record results in docs/biology-scaling.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import replace
+from pathlib import Path
+
+os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
+
+import numpy as np  # noqa: E402
+
+from allorules.biology_scaling import scale_with_ruleset  # noqa: E402
+from allorules.measures import limb_sections, stance_down  # noqa: E402
+from allorules.plugins import registry_for  # noqa: E402
+from allorules.posture import POSTURES  # noqa: E402
+from allorules.quadruped import generate_quadruped  # noqa: E402
+from allorules.render import region_colors, region_legend, render_comparison  # noqa: E402
+from allorules.rules import load_ruleset  # noqa: E402
+
+PICTURE = Path(__file__).resolve().parents[1] / "docs" / "images" / "posture.png"
+
+
+def back_pitch(body, down: np.ndarray) -> float:
+    """Degrees the abdomen → chest direction rises above the ground plane (⊥ ``down``)."""
+    forward = body.vertices[body.region_mask("chest")].mean(axis=0) - body.vertices[body.region_mask("abdomen")].mean(axis=0)
+    rise = -forward @ down
+    return float(np.degrees(np.arctan2(rise, np.linalg.norm(forward + rise * down))))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vertices", type=int, default=1500)
+    parser.add_argument("--modes", type=int, default=300)
+    parser.add_argument("--picture", default=str(PICTURE))
+    arguments = parser.parse_args()
+    registry = registry_for(None)
+    quadruped = load_ruleset("quadruped", registry)
+    body = generate_quadruped("horse", vertices=arguments.vertices).body()
+    colors = region_colors(body.labels, body.region_names)
+    meshes = {1.0: [(body.vertices, body.faces, "input", colors)], 0.5: [], 2.0: []}
+    down = stance_down([limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)])
+    print("| R | posture | converged | largest lean | largest foot lift | back pitch change | every rule within ±0.02 |")
+    print("|---|---|---|---|---|---|---|")
+    for ratio in (0.5, 2.0):
+        for posture in reversed(POSTURES):                       # free, upright, keep
+            ruleset = replace(quadruped, solver=replace(quadruped.solver, posture=posture))
+            result = scale_with_ruleset(body, ruleset, ratio, registry=registry, modes=arguments.modes, use_cache=False)
+            lean = max(change["tilt_degrees"] for change in result.posture.values())
+            lift = max(abs(change["foot_lift"]) for change in result.posture.values())
+            within = all(abs(rule.error) <= 0.02 for rule in result.rules)
+            pitch = back_pitch(result.body, down) - back_pitch(body, down)
+            print(f"| {ratio:g} | {posture} | {'yes' if result.converged else 'no'} | {lean:.1f}° | "
+                  f"{100 * lift:.1f} % of a leg | {pitch:+.1f}° | {'yes' if within else 'no'} |")
+            meshes[ratio].append((result.body.vertices, result.body.faces, f"×{ratio:g} {posture} ({lean:.1f}°, "
+                                                                            f"feet {100 * lift:.0f}%)", colors))
+    render_comparison(meshes[0.5] + meshes[1.0] + meshes[2.0], path=arguments.picture, normalise_size=True,
+                      size=(3200, 520), title="quadruped ruleset: each posture at ×0.5 and ×2 (largest lean, largest foot lift)",
+                      legend=region_legend(body.labels, body.region_names))
+    print(f"picture: {arguments.picture}")
+
+
+if __name__ == "__main__":
+    main()

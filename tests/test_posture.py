@@ -1,0 +1,99 @@
+"""The stance through a run (allorules.posture): legs turned back upright, feet put back on the ground.
+
+Known answers on the generated horse: a leg turned or lifted rigidly by a known amount is put back
+exactly, and a body moved without changing its stance (uniform scaling) is left alone.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from allorules.measures import limb_sections, posture_change, region_length
+from allorules.posture import FootContact, restore_limb_axes
+
+
+@pytest.fixture(scope="module")
+def animal():
+    from allorules.quadruped import generate_quadruped
+
+    return generate_quadruped("horse", vertices=1000)
+
+
+def test_restore_limb_axes_turns_a_leaning_leg_back(animal):
+    from scipy.spatial.transform import Rotation
+
+    body = animal.body()
+    assert np.array_equal(restore_limb_axes(body, body.with_vertices(body.vertices)), body.vertices)
+    leg = limb_sections(body, "hindlimbs")[0]
+    leaning = body.vertices.copy()
+    index = leg.mesh.vertex_index
+    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
+    leaning[index] = (leaning[index] - leg.junction) @ turn.T + leg.junction     # rigidly, about the hip
+    before = posture_change(body, body.with_vertices(leaning))
+    axis = leg.tip - leg.junction
+    expected = np.degrees(np.arccos(axis @ turn @ axis / (axis @ axis)))      # 6° less its splay out of the turn's plane
+    assert 5.9 < expected <= 6.0
+    assert max(change["tilt_degrees"] for change in before.values()) == pytest.approx(expected, abs=1e-6)
+    restored = restore_limb_axes(body, body.with_vertices(leaning))
+    after = posture_change(body, body.with_vertices(restored))
+    assert max(change["tilt_degrees"] for change in after.values()) < 0.01        # from 6° (the hip ring blends)
+    assert max(abs(change["foot_lift"]) for change in after.values()) < 1e-3
+    outside = np.ones(len(body.vertices), dtype=bool)
+    outside[index] = False
+    assert np.array_equal(restored[outside], leaning[outside])                    # only that leg moved
+
+
+def test_foot_contact_leaves_a_standing_body_alone(animal):
+    body = animal.body()
+    contact = FootContact.of(body)
+    assert len(contact.feet) == 4 and all(len(foot) for foot in contact.feet)
+    assert np.array_equal(contact.apply(body.vertices, 1.0), body.vertices)
+    # the same stance, 1.3 times bigger and elsewhere: nothing to put back
+    bigger = 1.3 * body.vertices + np.array([2.0, -1.0, 0.5])
+    np.testing.assert_allclose(contact.apply(bigger, 1.3), bigger, atol=1e-12)
+
+
+def test_foot_contact_puts_lifted_hind_feet_back_down(animal):
+    body = animal.body()
+    contact = FootContact.of(body)
+    hind = np.zeros(len(body.vertices), dtype=bool)
+    for limb in limb_sections(body, "hindlimbs"):
+        hind[limb.mesh.vertex_index] = True
+    length = region_length(body, "hindlimbs")
+    lifted = body.vertices - 0.2 * length * contact.down * hind[:, None]          # both hind legs up, rigidly
+    assert max(change["foot_lift"] for change in posture_change(body, body.with_vertices(lifted)).values()) > 0.15
+    put_back = contact.apply(lifted, 1.0)
+    for change in posture_change(body, body.with_vertices(put_back)).values():
+        assert abs(change["foot_lift"]) < 1e-9 and change["tilt_degrees"] < 1e-4      # arccos of 1 − 1e-16
+    shift = put_back - lifted
+    assert np.abs(shift - np.outer(shift @ contact.down, contact.down)).max() < 1e-12      # along the legs only
+    # every leg moves rigidly (lengths kept) and the shifts sum to zero (the body does not sink)
+    for region in ("forelimbs", "hindlimbs"):
+        moved = body.with_vertices(put_back)
+        assert region_length(moved, region) == pytest.approx(region_length(body, region), rel=1e-9)
+        for limb in limb_sections(body, region):
+            along = shift[limb.mesh.vertex_index] @ contact.down
+            assert np.ptp(along) < 1e-12
+    assert sum(float(shift[limb.mesh.vertex_index[0]] @ contact.down) for region in ("forelimbs", "hindlimbs")
+               for limb in limb_sections(body, region)) == pytest.approx(0.0, abs=1e-12)
+    # the tail, and the neck with the head, move as one: not bent, not sheared
+    for piece in (body.region_mask("tail"), body.region_mask("neck") | body.region_mask("head")):
+        assert np.ptp(shift[piece] @ contact.down) < 1e-12
+
+
+def test_foot_contact_weights_blend_the_legs_shifts(animal):
+    """Each leg's weight is 1 on it and 0 on the others; between, a blend in [0, 1] that sums to 1
+    (the torso follows a mixture of the legs' shifts, never more than the largest)."""
+    body = animal.body()
+    contact = FootContact.of(body)
+    limbs = [limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)]
+    for k, limb in enumerate(limbs):
+        others = np.delete(np.arange(len(limbs)), k)
+        assert np.all(contact.weights[k, limb.mesh.vertex_index] == 1.0)
+        assert np.all(contact.weights[others][:, limb.mesh.vertex_index] == 0.0)
+    assert contact.weights.min() >= -1e-12 and contact.weights.max() <= 1.0 + 1e-12
+    np.testing.assert_allclose(contact.weights.sum(axis=0), 1.0, atol=1e-9)
+    # the hind legs pull the rump more than the head, the fore legs the head more than the rump
+    head, rump = body.region_mask("head"), body.region_mask("tail")
+    fore = contact.weights[:2].sum(axis=0)
+    assert fore[head].mean() > 0.5 > fore[rump].mean()
