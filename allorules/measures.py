@@ -638,26 +638,50 @@ def torso_axis(body: Body) -> np.ndarray:
     return axis if axis @ (centroids["chest"] - centroids["abdomen"]) >= 0 else -axis
 
 
-def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None) -> tuple[list[Loop], np.ndarray]:
+def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,
+                 around_torso: bool = False) -> tuple[list[Loop], np.ndarray]:
     """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
 
-    Levels at the area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``); returns the
-    loops and the quantile of each (levels without a closed loop are left out).
+    Levels at the part's area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``).
+    ``around_torso``: cut the loops at those levels from the whole torso piece around the part
+    (:func:`_torso_piece`) rather than from the part alone. Returns the loops and the quantile of
+    each (levels without a closed loop are left out).
     """
     part = region_parts(body, region)[0]
     field = part.vertices @ axis
     if targets is None:
         targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
     levels = area_quantiles(part.vertices, part.faces, field, targets)
+    cut = _torso_piece(body, region) if around_torso else part
+    cut_field = cut.vertices @ axis
     loops, kept = [], []
     for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
         if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
             continue
-        found = isocontour_loops(part.vertices, part.faces, field, level)
+        found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
         if found:
             loops.append(found[0])
             kept.append(target)
     return loops, np.asarray(kept)
+
+
+def _torso_piece(body: Body, region: str) -> RegionPart:
+    """The connected piece of the torso (faces mostly chest or abdomen) that holds ``region``'s
+    largest part: what a tape measure goes around when the region's own sections do not close."""
+    key = "measures.parts:torso"
+    if key not in body.cache:
+        in_torso = np.zeros(len(body.vertices), dtype=bool)
+        for name in TORSO_REGIONS:
+            if body.has_region(name):
+                in_torso |= body.region_mask(name)
+        faces = body.faces[in_torso[body.faces].sum(axis=1) >= 2]
+        pieces = []
+        for face_index in connected_parts(faces):
+            vertices, local_faces, vertex_index = submesh(body.vertices, faces, face_index)
+            pieces.append(RegionPart("torso", vertices, local_faces, vertex_index, float(face_areas(vertices, local_faces).sum())))
+        body.cache[key] = pieces
+    first = region_parts(body, region)[0].vertex_index[0]
+    return next(piece for piece in body.cache[key] if np.isin(first, piece.vertex_index))
 
 
 def _forelimb_limit(body: Body, axis: np.ndarray) -> float | None:
@@ -678,28 +702,38 @@ def chest_girth(body: Body) -> float:
     the body; without forelimbs, any section. The candidates are the sections at fixed area
     quantiles of the chest that lie behind that limit, plus the section at the limit: where the
     chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
-    with the forelimbs continuously instead of jumping from one quantile to the next. On a carried
-    body (:func:`carry_fields`) the quantile levels are the reference's.
+    with the forelimbs continuously instead of jumping from one quantile to the next. When no
+    section of the chest alone closes there (its boundary with the abdomen zigzags across the
+    large faces of a low-poly mesh), the same levels are cut around the whole torso. On a carried
+    body (:func:`carry_fields`) the quantile levels, and which of the two, are the reference's.
     """
     axis = torso_axis(body)
-    key = "measures.chest-candidates"
-    limit = _forelimb_limit(body, axis)
     part = region_parts(body, "chest")[0]
     field = part.vertices @ axis
+    limit = _forelimb_limit(body, axis)
     if limit is not None:
         limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
+
+    def candidates(targets: np.ndarray | None, around_torso: bool) -> tuple[list[Loop], np.ndarray]:
+        loops, kept = _torso_loops(body, "chest", axis, targets, around_torso)
+        if limit is not None:
+            # every candidate behind the limit, and the section at the limit itself: so a candidate
+            # crossing the limit leaves or joins where it equals that last section (no jump)
+            loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
+            if field.min() < limit < field.max():
+                cut = _torso_piece(body, "chest") if around_torso else part
+                loops += isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+        return loops, kept
+
     carried = body.cache.get("measures.carried.chest-candidates")
     if carried is not None:
-        loops, _ = _torso_loops(body, "chest", axis, carried)
+        loops, _ = candidates(*carried)
     else:
-        loops, targets = _torso_loops(body, "chest", axis)
-        body.cache[key] = targets
-    if limit is not None:
-        # every candidate behind the limit, and the section at the limit itself: so a candidate
-        # crossing the limit leaves or joins where it equals that last section (no jump)
-        loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
-        if field.min() < limit < field.max():
-            loops += isocontour_loops(part.vertices, part.faces, field, limit)[:1]
+        for around_torso in (False, True):
+            loops, kept = candidates(None, around_torso)
+            if loops:
+                body.cache["measures.chest-candidates"] = (kept, around_torso)
+                break
     if not loops:
         raise MeasurementError(
             "no closed section of the chest behind the forelimbs: the chest region does not go all "
@@ -722,6 +756,7 @@ def region_girth(body: Body, region: str) -> float:
         girth = chest_girth(body)
     elif region == "abdomen":
         loops, _ = _torso_loops(body, region, torso_axis(body))
+        loops = loops or _torso_loops(body, region, torso_axis(body), around_torso=True)[0]
         if not loops:
             raise MeasurementError("no closed section across the abdomen; check the segmentation")
         girth = max(loop.girth for loop in loops)

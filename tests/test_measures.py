@@ -705,3 +705,43 @@ def test_a_paired_region_in_one_piece_with_two_feet_is_split_into_its_legs():
     # one leg alone is not split: no second foot
     one_leg = Body(vertices, faces, np.where(top | (vertices[:, 0] > 0), 1, 0), ("forelimbs", "chest"))
     assert len(measures.region_parts(one_leg, "forelimbs")) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Heart girth is a tape measure around the body, not around a label
+
+
+def test_heart_girth_is_measured_around_the_torso_when_the_chest_labels_are_ragged():
+    """Where the chest/abdomen labels zigzag (large faces of a low-poly mesh), no plane section of
+    the chest alone closes behind the forelimbs (before: a MeasurementError); the same levels are
+    then cut around the whole torso, which gives the clean chest's girth."""
+    from allorules.measures import _forelimb_limit, chest_girth, torso_axis
+
+    body = pytest.importorskip("allorules.quadruped").generate_quadruped("horse", vertices=2000).body()
+    chest, abdomen = body.region_names.index("chest"), body.region_names.index("abdomen")
+    axis = torso_axis(body)
+    along = body.vertices @ axis
+    torso = (body.labels == chest) | (body.labels == abdomen)
+    length = np.ptp(along[torso])
+    # every label between the chest's back end and just past the forelimbs' limit at random
+    band = torso & (along > along[body.labels == chest].min() - 0.05 * length) & (along < _forelimb_limit(body, axis) + 0.02 * length)
+    labels = body.labels.copy()
+    labels[band] = np.where(np.random.default_rng(0).random(band.sum()) < 0.5, chest, abdomen)
+    ragged = Body(body.vertices, body.faces, labels, body.region_names, body.frame)
+    assert chest_girth(ragged) == pytest.approx(chest_girth(body), rel=1e-3)
+    assert ragged.cache["measures.chest-candidates"][1]                  # cut around the torso
+    assert not body.cache["measures.chest-candidates"][1]                # the clean chest: its own sections
+
+
+@pytest.mark.shared_meshes
+def test_low_poly_dog_heart_girth_is_measured(shared_meshes):
+    """The shared low-poly dog's chest/abdomen boundary crosses faces as long as a leg is thick:
+    no section of its chest alone closes behind the forelimbs."""
+    from allorules.measures import chest_girth, torso_axis
+
+    body = labelled_real_mesh(shared_meshes / "dog-lowpoly.obj")
+    girth = chest_girth(body)
+    # about the torso's circumference: between the abdomen's smallest and largest sections
+    abdomen = [loop.girth for loop in isocontour_loops(body.vertices, body.faces, body.vertices @ torso_axis(body),
+                                                       np.median(body.vertices[body.region_mask("abdomen")] @ torso_axis(body)))]
+    assert 0.5 * max(abdomen) < girth < 2.0 * max(abdomen)
