@@ -533,10 +533,12 @@ def peak_stress(body: Body, *, override: SectionChoice | None = None) -> float:
 # Posture: how the limbs stand
 
 
-def stance_down(limbs: list[Limb]) -> np.ndarray:
-    """The unit direction the legs point, shoulders to feet (the sum of their junction → tip axes):
-    'down' for an animal standing on them, whatever the mesh's orientation."""
-    down = np.sum([limb.tip - limb.junction for limb in limbs], axis=0)
+def stance_down(limbs: list[Limb], frame=None) -> np.ndarray:
+    """'Down' for an animal standing on its legs, whatever the mesh's orientation: −``frame.up``
+    when the body has a frame (the labeller's is the normal of the plane the feet stand on),
+    else the direction the legs point, shoulders to feet (the sum of their junction → tip axes;
+    tilted where the legs slant, as a dog's hind legs do)."""
+    down = -np.asarray(frame.up, dtype=float) if frame is not None else np.sum([limb.tip - limb.junction for limb in limbs], axis=0)
     return down / np.linalg.norm(down)
 
 
@@ -545,9 +547,9 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
 
     Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
     centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
-    lowest foot, as a share of the leg's length. Heights are taken along the limbs' mean direction
-    before (shoulders to feet), so no up axis is needed. Nothing rules ask for; the report shows it
-    because an allometric edit can meet every rule yet leave the animal leaning.
+    lowest foot, as a share of the leg's length. Heights are taken along :func:`stance_down` of
+    ``before``. Nothing rules ask for; the report shows it because an allometric edit can meet
+    every rule yet leave the animal leaning.
     """
     limbs_before = [limb for region in LIMB_REGIONS if before.has_region(region) for limb in limb_sections(before, region)]
     if not limbs_before:
@@ -555,7 +557,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     carried = carry_fields(before, after.with_vertices(after.vertices))
     limbs_after = [limb for region in LIMB_REGIONS if carried.has_region(region) for limb in limb_sections(carried, region)]
 
-    down = stance_down(limbs_before)
+    down = stance_down(limbs_before, before.frame)
 
     def stance(limbs: list[Limb]) -> tuple[np.ndarray, np.ndarray]:
         axes = np.array([limb.tip - limb.junction for limb in limbs])

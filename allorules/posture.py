@@ -95,7 +95,7 @@ class FootContact:
             torso = on_leg < 0
         weights = _harmonic_weights(_conductances(body.vertices, body.faces), on_leg, torso, len(limbs))
         feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)
-        down = stance_down(limbs)
+        down = stance_down(limbs, body.frame)
         contact = cls(down, feet, weights, np.zeros(len(limbs)))
         return cls(down, feet, weights, contact.foot_heights(body.vertices))
 

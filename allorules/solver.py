@@ -357,6 +357,7 @@ class StepSolution:
     body: Body
     failed_evaluations: int = 0
     jacobian: np.ndarray | None = field(default=None, repr=False)   # of the residual vector, for the next step
+    feet: FootContact | None = field(default=None, repr=False)      # the step's foot contact (posture keep)
 
     @property
     def variables(self) -> np.ndarray:
@@ -512,6 +513,7 @@ def solve_step(
         body=best.body,
         failed_evaluations=failed,
         jacobian=jacobian,
+        feet=step.feet,
     )
 
 

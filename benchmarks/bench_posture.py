@@ -48,7 +48,7 @@ def main() -> None:
     body = generate_quadruped("horse", vertices=arguments.vertices).body()
     colors = region_colors(body.labels, body.region_names)
     meshes = {1.0: [(body.vertices, body.faces, "input", colors)], 0.5: [], 2.0: []}
-    down = stance_down([limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)])
+    down = stance_down([limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)], body.frame)
     print("| R | posture | converged | largest lean | largest foot lift | back pitch change | every rule within ±0.02 |")
     print("|---|---|---|---|---|---|---|")
     for ratio in (0.5, 2.0):

@@ -97,3 +97,37 @@ def test_foot_contact_weights_blend_the_legs_shifts(animal):
     head, rump = body.region_mask("head"), body.region_mask("tail")
     fore = contact.weights[:2].sum(axis=0)
     assert fore[head].mean() > 0.5 > fore[rump].mean()
+
+
+def test_heights_are_taken_along_the_ground_normal(animal):
+    """With a frame (the labeller's: the normal of the plane the feet stand on), 'down' is −up,
+    not the legs' mean direction, which slanting hind legs tilt."""
+    from allorules.measures import stance_down
+
+    body = animal.body()
+    assert body.frame is not None
+    contact = FootContact.of(body)
+    np.testing.assert_allclose(contact.down, -np.asarray(body.frame.up) / np.linalg.norm(body.frame.up), atol=1e-12)
+    limbs = [limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)]
+    legs_mean = stance_down(limbs)
+    assert legs_mean @ contact.down < 1.0 - 1e-6          # the legs' mean direction is another one
+
+
+@pytest.mark.slow
+def test_automatically_labelled_animal_keeps_its_feet_down_through_a_run():
+    """Turning a slanted leg upright after a step moves its foot; the feet are put back after
+    the turn too. On the automatically labelled generated horse the feet ended 7–8 % of a leg
+    apart at R = 2 without that second pass, 1.3 % with it."""
+    from allorules.biology_scaling import scale_with_ruleset
+    from allorules.body import Body
+    from allorules.plugins import registry_for
+    from allorules.rules import load_ruleset
+    from allorules.segmentation import label_quadruped
+
+    generated = pytest.importorskip("allorules.quadruped").generate_quadruped("horse", vertices=3000)
+    body = label_quadruped(Body(np.asarray(generated.vertices, dtype=float), np.asarray(generated.faces)))
+    registry = registry_for(None)
+    result = scale_with_ruleset(body, load_ruleset("quadruped", registry), 2.0, registry=registry, modes=300,
+                                use_cache=False)
+    assert result.converged, result.messages
+    assert max(abs(change["foot_lift"]) for change in result.posture.values()) < 0.03
