@@ -6,12 +6,13 @@ No rule measures a direction or a height, so this module keeps them, without tou
 rules measure:
 
 * :class:`FootContact` is part of each step's transform (:class:`allorules.solver.StepTransform`):
-  after Eq. 9, each leg is moved rigidly up or down along the legs' direction so that the feet
+  after Eq. 9, each leg is moved rigidly up or down along the ground's normal so that the feet
   keep the heights above one another they had at the step's start (scaled with the body); the
   rest of the body follows in a harmonic blend of the legs' shifts. The solver measures, and so
   meets its targets on, the mesh with the feet put back.
 * :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
-  after the step.
+  after the step; the step's foot contact is then applied once more, since turning a slanted
+  leg moves its foot (:func:`allorules.biology_scaling.scale_with_ruleset`).
 
 ``posture: keep`` (the default) does both, ``upright`` only the second, ``free`` neither (the
 paper's behaviour).

@@ -467,6 +467,7 @@ def solve_step(
     upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (count - 1)], dtype=float)
     isometric = np.zeros(count)
     isometric[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
+    isometric = np.clip(isometric, lower, upper)
     start = isometric if start is None else np.clip(np.asarray(start, dtype=float), lower, upper)
     budget = int(settings.max_evaluations)
 
