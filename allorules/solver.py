@@ -13,7 +13,7 @@ axes of "per axis" are the animal's own (forward, up, side: :func:`anatomical_ax
 mesh gives the same animal turned; ``solver.transform: per-mode`` is the alternative on each
 mode's vector length (docs/biology-scaling.md).
 With ``solver.posture: keep`` the transform then puts every foot back at its height above the
-others (:class:`allorules.posture.FootContact`: legs moved rigidly along their direction), so the
+others (:class:`allorules.posture.FootContact`: legs moved rigidly along the ground's normal), so the
 solver measures, and meets its targets on, the animal standing.
 Region coefficients are taken of the vertices *relative to the body's area-weighted centroid*
 (the point mode 0 represents), so that the gate G, and with it the result, does not depend on
