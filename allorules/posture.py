@@ -138,9 +138,13 @@ def _harmonic_weights(conductance: sparse.csr_matrix, on_leg: np.ndarray, torso:
     rows = np.flatnonzero(free)
     gather = sparse.csr_matrix((np.ones(len(rows)), (rows, node[rows])), shape=(count, unknowns))
     laplacian = sparse.diags(np.asarray(conductance.sum(axis=1)).ravel()) - conductance
-    # Gᵀ L G w = −Gᵀ L w_fixed; the tiny diagonal keeps a piece that touches no leg solvable (at 0)
+    # Gᵀ L G w = −Gᵀ L w_fixed; a diagonal 1e-12 of the smallest row's keeps every piece solvable
+    # (one that reaches no leg gets 0) without leaking weight anywhere else (a zero-length edge's
+    # huge conductance would make one relative to a typical row leak)
     system = (gather.T @ laplacian @ gather).tocsc()
-    system = system + sparse.identity(unknowns, format="csc") * (1e-12 * system.diagonal().mean())
+    diagonal = system.diagonal()
+    smallest = float(diagonal[diagonal > 0].min()) if np.any(diagonal > 0) else 1.0
+    system = system + sparse.identity(unknowns, format="csc") * (1e-12 * smallest)
     right = -(gather.T @ (laplacian @ fixed))
     solved = splu(system).solve(np.ascontiguousarray(right))
     return (fixed + gather @ solved).T
@@ -150,7 +154,7 @@ def _conductances(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
     """The mesh's edges as a symmetric sparse matrix of conductances 1 / edge length."""
     edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
     lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
-    conductance = 1.0 / np.maximum(lengths, np.finfo(float).tiny)     # a zero-length edge joins firmly
+    conductance = 1.0 / np.maximum(lengths, 1e-6 * lengths.mean())    # a zero-length edge joins firmly, finitely
     count = len(vertices)
     upper = sparse.csr_matrix((conductance, (edges[:, 0], edges[:, 1])), shape=(count, count))
     return sparse.csr_matrix(upper + upper.T)

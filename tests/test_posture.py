@@ -131,3 +131,18 @@ def test_automatically_labelled_animal_keeps_its_feet_down_through_a_run():
                                 use_cache=False)
     assert result.converged, result.messages
     assert max(abs(change["foot_lift"]) for change in result.posture.values()) < 0.03
+
+
+def test_foot_contact_weights_survive_a_zero_length_edge_and_a_stray_piece():
+    """Users' meshes have degenerate faces and stray parts: the weights stay finite, sum to 1
+    where a leg is reached, and a piece that touches no leg does not move."""
+    from allorules.posture import _conductances, _harmonic_weights
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],      # 1 and 2 coincide
+                         [5, 5, 0], [6, 5, 0], [5, 6, 0]], dtype=float)              # a stray triangle
+    faces = np.array([[0, 1, 3], [1, 2, 3], [2, 4, 3], [5, 6, 7]])
+    on_leg = np.array([0, -1, -1, -1, 1, -1, -1, -1])
+    weights = _harmonic_weights(_conductances(vertices, faces), on_leg, on_leg < 0, 2)
+    assert np.all(np.isfinite(weights))
+    np.testing.assert_allclose(weights[:, :5].sum(axis=0), 1.0, atol=1e-9)
+    np.testing.assert_allclose(weights[:, 5:], 0.0, atol=1e-12)
