@@ -561,7 +561,9 @@ def _spectrum_slicing(
     solver = _BandSolver(stiffness, mass, count, band_size, initial, progress)
     n = len(mass)
     values_found: list[np.ndarray] = []
-    vectors_found: list[np.ndarray] = []     # views into the store, band by band
+    # The last band's vectors (a view into the store) deflate the next band; only the last is
+    # kept, so a store that grows does not keep its old array alive through older views.
+    previous_band: np.ndarray | None = None
     store = _ColumnStore(n, count + band_size)
     done = 0
     lower = previous_lower = -np.inf
@@ -579,7 +581,7 @@ def _spectrum_slicing(
         factor = _factorise(solver.stiffness_csc, solver.mass_matrix, shift)
         solver.window = (lower if np.isfinite(lower) else -np.inf, reach)
         values, vectors, upper = solver.lanczos_band(
-            factor, lower, done, wanted, vectors_found[-1] if vectors_found else None, previous_lower)
+            factor, lower, done, wanted, previous_band, previous_lower)
         log.debug("band %d: sigma=%.6g below=%d accepted=%d solves=%d", band_index, shift,
                   factor.below, len(values), solver.solves)
         if len(values) > 4:
@@ -587,7 +589,7 @@ def _spectrum_slicing(
             start = max(lower, 0.0) if np.isfinite(lower) else 0.0
             solver.density = len(values) / max(upper - start, 1e-300)
         values_found.append(values)
-        vectors_found.append(store.append(vectors))
+        previous_band = store.append(vectors)
         done += len(values)
         previous_lower, lower = lower, upper
         band_index += 1
@@ -598,10 +600,10 @@ def _spectrum_slicing(
     if top.below < done:
         raise np.linalg.LinAlgError(f"{top.below} eigenvalues below {lower:g}, {done} accepted")
     if top.below > done:
-        values, vectors = solver.recover(top, top.below - done, [vectors_found[-1]], previous_lower,
-                                         spare=vectors_found[-1].shape[1])
+        values, vectors = solver.recover(top, top.below - done, [previous_band], previous_lower,
+                                         spare=previous_band.shape[1])
         values_found.append(values)
-        vectors_found.append(store.append(vectors))
+        store.append(vectors)
         done += len(values)
     eigenvalues = np.concatenate(values_found)
     order = np.argsort(eigenvalues, kind="stable")[:count]

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sparse
 import scipy.sparse.csgraph as csgraph
 
 from .body import Body
@@ -42,6 +41,7 @@ from .sections import (
     submesh,
 )
 
+from .patches import vertex_graph
 from .preparation import HoleCaps, boundary_edge_loops, boundary_edges, cap_holes, hole_caps
 
 LIMB_REGIONS = ("forelimbs", "hindlimbs")
@@ -236,10 +236,7 @@ def region_parts(body: Body, region: str) -> list[RegionPart]:
 
 def _surface_distances(vertices: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:
     """Shortest distance along the mesh edges from the nearest of ``sources`` to every vertex."""
-    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
-    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
-    graph = sparse.coo_matrix((np.maximum(lengths, 1e-300), (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2).tocsr()
-    return csgraph.dijkstra(graph, directed=False, indices=np.asarray(sources), min_only=True)
+    return csgraph.dijkstra(vertex_graph(vertices, faces), directed=False, indices=np.asarray(sources), min_only=True)
 
 
 def _split_at_two_feet(part: RegionPart) -> list[np.ndarray] | None:
@@ -757,8 +754,8 @@ def region_girth(body: Body, region: str) -> float:
     if region == "chest":
         girth = chest_girth(body)
     elif region == "abdomen":
-        loops, _ = _torso_loops(body, region, torso_axis(body))
-        loops = loops or _torso_loops(body, region, torso_axis(body), around_torso=True)[0]
+        axis = torso_axis(body)
+        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso=True)[0]
         if not loops:
             raise MeasurementError("no closed section across the abdomen; check the segmentation")
         girth = max(loop.girth for loop in loops)

@@ -30,6 +30,7 @@ import scipy.sparse.csgraph as csgraph
 from scipy.sparse.linalg import splu
 
 from .body import Body
+from .patches import vertex_graph
 
 # solver.posture of a ruleset: legs upright and feet on the ground; legs upright only; neither.
 POSTURES = ("keep", "upright", "free")
@@ -152,12 +153,9 @@ def _harmonic_weights(conductance: sparse.csr_matrix, on_leg: np.ndarray, torso:
 
 def _conductances(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
     """The mesh's edges as a symmetric sparse matrix of conductances 1 / edge length."""
-    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
-    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
-    conductance = 1.0 / np.maximum(lengths, 1e-6 * lengths.mean())    # a zero-length edge joins firmly, finitely
-    count = len(vertices)
-    upper = sparse.csr_matrix((conductance, (edges[:, 0], edges[:, 1])), shape=(count, count))
-    return sparse.csr_matrix(upper + upper.T)
+    graph = vertex_graph(vertices, faces)
+    graph.data = 1.0 / np.maximum(graph.data, 1e-6 * graph.data.mean())    # a zero-length edge joins firmly, finitely
+    return graph
 
 
 # ---------------------------------------------------------------------------------------------
