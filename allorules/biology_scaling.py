@@ -55,6 +55,7 @@ EXPONENT_TOLERANCE = 0.02
 MASS_TOLERANCE = 0.01
 CONSTRAINT_TOLERANCE = 0.02
 POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
+POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
 
 
 # ---------------------------------------------------------------------------------------------
@@ -132,7 +133,7 @@ class BiologyScalingResult(ScalingResult):
     constraints: dict[str, float] = field(default_factory=dict)   # whole-run residuals
     stress_ratio: float | None = None
     transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
-    posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift
+    posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift, bend
     posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.posture)
 
     def details(self) -> dict:
@@ -299,6 +300,11 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
         if tilt > POSTURE_TILT_WARNING:
             log.warning("the legs lean by up to %.1f° and a foot moved %.1f%% of a leg's length off the ground; "
                         "every rule may still be met (see docs/biology-scaling.md, posture)", tilt, 100 * lift)
+        leg, change = max(result.posture.items(), key=lambda item: item[1]["bend"])
+        if change["bend"] > POSTURE_BEND_WARNING:
+            log.warning("%s bows by %.1f%% of its length more than in the input: Eq. 9 changed the leg's own "
+                        "shape, which no rule measures; look at the output (docs/biology-scaling.md, posture)",
+                        leg, 100 * change["bend"])
 
 
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:

@@ -539,14 +539,32 @@ def stance_down(limbs: list[Limb], frame=None) -> np.ndarray:
     return down / np.linalg.norm(down)
 
 
+def limb_bend(limb: Limb) -> float:
+    """How far a limb's centre line strays from straight: the largest distance of a section
+    centroid from the line junction → last section's centroid, as a share of that line's length
+    (0 for a straight leg; a uniform scaling or a turn leaves it as it is). The foot tip is left
+    out: it is one vertex, at the toe, and a hoof's toe sits off the leg's line."""
+    if len(limb.sections) < 2:
+        return 0.0
+    centroids = np.array([section.loop.centroid for section in limb.sections])
+    chord = centroids[-1] - limb.junction
+    reach = float(np.linalg.norm(chord))
+    if reach == 0.0:
+        return 0.0
+    offsets = centroids - limb.junction
+    across = offsets - np.outer(offsets @ chord / reach ** 2, chord)
+    return float(np.linalg.norm(across, axis=1).max() / reach)
+
+
 def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
-    """How the limbs' stance changed from ``before`` to ``after`` (same faces and labels).
+    """How the limbs' stance and shape changed from ``before`` to ``after`` (same faces and labels).
 
     Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
     centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
-    lowest foot, as a share of the leg's length. Heights are taken along :func:`stance_down` of
-    ``before``. Nothing rules ask for; the report shows it because an allometric edit can meet
-    every rule yet leave the animal leaning.
+    lowest foot, as a share of the leg's length; ``bend``, the change of :func:`limb_bend` (a leg
+    that bows). Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for;
+    the report shows it because an allometric edit can meet every rule yet leave the animal
+    leaning or its legs bent.
     """
     limbs_before = [limb for region in LIMB_REGIONS if before.has_region(region) for limb in limb_sections(before, region)]
     if not limbs_before:
@@ -570,6 +588,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
         change[f"{limb.region}[{limb.part}]"] = {
             "tilt_degrees": float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
             "foot_lift": float(lift_after[index] - lift_before[index]),
+            "bend": limb_bend(limbs_after[index]) - limb_bend(limb),
         }
     return change
 

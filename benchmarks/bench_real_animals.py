@@ -4,7 +4,7 @@ Run: .venv/bin/python benchmarks/bench_real_animals.py [--modes M] [--picture PN
 
 Each mesh is prepared and labelled automatically, as ``allorules scale MESH --ruleset quadruped``
 does, then scaled at R = 0.5 and 2 (basis cache off). Prints a table (converged, every rule's
-achieved exponent, mass and stress ratios, the largest foot lift, wall time) and draws the
+achieved exponent, mass and stress ratios, the largest foot lift and bow, wall time) and draws the
 animals at ×0.5, as they came and at ×2, each at the same head-to-tail length (default
 docs/images/real_animals.png). A mesh the labeller refuses is listed with its reason. Record
 results in docs/biology-scaling.md.
@@ -42,8 +42,9 @@ def main() -> None:
     registry = registry_for(None)
     ruleset = load_ruleset("quadruped", registry)
     ids = [rule.id for rule in ruleset.rules]
-    print(f"| animal | vertices | R | converged | {' | '.join(ids)} | mass ratio | stress ratio | feet lift up to | wall |")
-    print("|---|---|---|---|" + "---|" * len(ids) + "---|---|---|---|")
+    print(f"| animal | vertices | R | converged | {' | '.join(ids)} | mass ratio | stress ratio | feet lift up to | "
+          "a leg bows up to | wall |")
+    print("|---|---|---|---|" + "---|" * len(ids) + "---|---|---|---|---|")
     grid, frames = {}, {}
     for name in ANIMALS:
         prepared = prepare_mesh(MESHES / f"{name}.obj")
@@ -64,8 +65,10 @@ def main() -> None:
             wall = time.perf_counter() - wall
             achieved = " | ".join(f"{rule.achieved_exponent:.3f}" for rule in result.rules)
             lift = max(abs(change["foot_lift"]) for change in result.posture.values())
+            bend = max(change["bend"] for change in result.posture.values())
             print(f"| {name} | {len(body.vertices):,} | {ratio:g} | {'yes' if result.converged else 'no'} | {achieved} | "
-                  f"{result.mass_ratio:.4f} | {result.stress_ratio:.4f} | {100 * lift:.1f} % | {wall:.0f} s |", flush=True)
+                  f"{result.mass_ratio:.4f} | {result.stress_ratio:.4f} | {100 * lift:.1f} % | {100 * bend:+.1f} % | "
+                  f"{wall:.0f} s |", flush=True)
             grid[name][f"×{ratio:g}"] = (result.body.vertices, result.body.faces, colors)
     print(f"targets: {', '.join(f'{rule.id} {rule.exponent:.3f}' for rule in ruleset.rules)}")
     render_gallery(grid, path=arguments.picture, rows=("×0.5", "as it came", "×2"), frames=frames,

@@ -71,7 +71,7 @@ def _check_output(result, body):
     # the stance of every leg is reported (the generated horse has two fore and two hind legs)
     assert sorted(report["posture"]) == ["forelimbs[0]", "forelimbs[1]", "hindlimbs[0]", "hindlimbs[1]"]
     for change in report["posture"].values():
-        assert 0.0 <= change["tilt_degrees"] < 90.0 and math.isfinite(change["foot_lift"])
+        assert 0.0 <= change["tilt_degrees"] < 90.0 and math.isfinite(change["foot_lift"]) and math.isfinite(change["bend"])
 
 
 @pytest.mark.slow

@@ -555,6 +555,7 @@ def test_posture_change_measures_a_leaning_leg():
     scaled = body.with_vertices(3.0 * body.vertices + 5.0)          # the same stance, bigger, elsewhere
     for change in posture_change(body, scaled).values():
         assert change["tilt_degrees"] == pytest.approx(0.0, abs=1e-6) and change["foot_lift"] == pytest.approx(0.0, abs=1e-9)
+        assert change["bend"] == pytest.approx(0.0, abs=1e-9)
     # lean the second leg 10° forward about its junction, rigidly
     leaning = body.vertices.copy()
     leg = (leaning[:, 0] > 2.0) & (leaning[:, 2] < cut + 0.5)
@@ -565,6 +566,45 @@ def test_posture_change_measures_a_leaning_leg():
     assert tilts[0] == pytest.approx(0.0, abs=1e-6) and tilts[1] == pytest.approx(10.0, abs=1e-6)
     lifted = max(change.values(), key=lambda value: value["tilt_degrees"])
     assert lifted["foot_lift"] == pytest.approx(1 - np.cos(np.radians(10.0)), abs=0.004)   # its foot leaves the ground
+    assert lifted["bend"] == pytest.approx(0.0, abs=1e-9)                  # turned rigidly: no bow
+
+
+def test_posture_change_measures_a_bowing_leg():
+    from allorules.measures import limb_bend, limb_sections, posture_change
+
+    body = legs_body()
+    assert [limb_bend(limb) for limb in limb_sections(body, "forelimbs")] == pytest.approx([0.0, 0.0], abs=1e-9)
+    # bow the second leg sideways between the cut (z = −2) and the start of its round tip (z = −4):
+    # its centre line moves by 0.2 · sin(π (−2 − z) / 2), 0.2 at z = −3, 0 at both ends
+    bowed = body.vertices.copy()
+    z = bowed[:, 2]
+    leg = (bowed[:, 0] > 2.0) & (z < -2.0) & (z > -4.0)
+    bowed[leg, 1] += 0.2 * np.sin(np.pi * (-2.0 - z[leg]) / 2.0)
+    change = posture_change(body, body.with_vertices(bowed))
+    bends = sorted(value["bend"] for value in change.values())
+    assert bends[0] == pytest.approx(0.0, abs=1e-9)
+    # up to 0.2 across (the sections nearest z = −3), over the 2.94 from the junction (z = −2.03)
+    # to the last section's centroid (z = −4.97, near the tip)
+    assert 0.9 * 0.2 / 2.94 < bends[1] < 0.2 / 2.94
+    bowing = max(change.values(), key=lambda value: value["bend"])
+    assert bowing["tilt_degrees"] < 1.0 and abs(bowing["foot_lift"]) < 1e-9   # its ends stay put
+
+
+def test_a_run_that_bows_a_leg_says_so(caplog):
+    from allorules.biology_scaling import BiologyScalingResult, _report_posture
+
+    body = legs_body()
+    for amplitude, warned in ((0.1, False), (0.3, True)):      # bows of 3 % and 10 % of the leg
+        bowed = body.vertices.copy()
+        z = bowed[:, 2]
+        leg = (bowed[:, 0] > 2.0) & (z < -2.0) & (z > -4.0)
+        bowed[leg, 1] += amplitude * np.sin(np.pi * (-2.0 - z[leg]) / 2.0)
+        result = BiologyScalingResult(body=body, target_mass_ratio=1.0)
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="allorules"):
+            _report_posture(result, body, body.with_vertices(bowed))
+        assert max(change["bend"] for change in result.posture.values()) > 0.03
+        assert ("forelimbs[1] bows by" in caplog.text) is warned, caplog.text
 
 
 # ---------------------------------------------------------------------------------------------
