@@ -285,6 +285,26 @@ def _carried_misses(terms, anchors: dict[str, float], reached: float, current: B
     return corrections
 
 
+def posture_warnings(posture: dict[str, dict[str, float]]) -> list[str]:
+    """What a run's ``posture`` (per leg: ``tilt_degrees``, ``foot_lift``, ``bend``) should warn
+    about: legs leaning more than ``POSTURE_TILT_WARNING`` degrees, a leg bowing by more than
+    ``POSTURE_BEND_WARNING`` of its length beyond the input's bow. Empty when all is well."""
+    if not posture:
+        return []
+    warnings = []
+    tilt = max(change["tilt_degrees"] for change in posture.values())
+    lift = max(abs(change["foot_lift"]) for change in posture.values())
+    if tilt > POSTURE_TILT_WARNING:
+        warnings.append(f"the legs lean by up to {tilt:.1f}° and a foot moved {100 * lift:.1f}% of a leg's length off "
+                        "the ground; every rule may still be met (see docs/biology-scaling.md, posture)")
+    leg, change = max(posture.items(), key=lambda item: item[1]["bend"])
+    if change["bend"] > POSTURE_BEND_WARNING:
+        warnings.append(f"{leg} bows by {100 * change['bend']:.1f}% of its length more than in the input: Eq. 9 "
+                        "changed the leg's own shape, which no rule measures; look at the output "
+                        "(docs/biology-scaling.md, posture)")
+    return warnings
+
+
 def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) -> None:
     """How the legs' stance changed over the run (no rule asks for it; the report shows it)."""
     from .measures import posture_change
@@ -294,17 +314,8 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
     except AllorulesError as error:   # a body whose limbs cannot be measured: say so, do not fail the run
         log.warning("posture not measured: %s", error)
         return
-    if result.posture:
-        tilt = max(change["tilt_degrees"] for change in result.posture.values())
-        lift = max(abs(change["foot_lift"]) for change in result.posture.values())
-        if tilt > POSTURE_TILT_WARNING:
-            log.warning("the legs lean by up to %.1f° and a foot moved %.1f%% of a leg's length off the ground; "
-                        "every rule may still be met (see docs/biology-scaling.md, posture)", tilt, 100 * lift)
-        leg, change = max(result.posture.items(), key=lambda item: item[1]["bend"])
-        if change["bend"] > POSTURE_BEND_WARNING:
-            log.warning("%s bows by %.1f%% of its length more than in the input: Eq. 9 changed the leg's own "
-                        "shape, which no rule measures; look at the output (docs/biology-scaling.md, posture)",
-                        leg, 100 * change["bend"])
+    for warning in posture_warnings(result.posture):
+        log.warning("%s", warning)
 
 
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:

@@ -345,7 +345,13 @@ def _write_pictures(demo: DemoResult, body) -> None:
         demo.files.append((name.removesuffix(".png").replace("_", " "), path))
 
 
+def _tenths(value: float) -> float:
+    """``value`` to one decimal, never −0 (a table cell)."""
+    return round(value, 1) + 0.0
+
+
 def _write_reports(demo: DemoResult, generated, body) -> None:
+    from .biology_scaling import posture_warnings
     from .export import write_json
     from .report_html import Table, write_html_report
 
@@ -384,12 +390,20 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
                     row["residual"]] for row in demo.rule_rows()],
                   note="Achieved exponent e' = log(q_final / q_initial) / log R on the output. Global scaling does not "
                        "know the rules; the biology-aware runs solve for them.")
+    stance = Table("Legs: stance and shape over the run", ["run", "leg", "lean (°)", "foot lift (% of the leg)",
+                                                           "bow added (% of the leg)"],
+                   [[run.name, leg, _tenths(change["tilt_degrees"]), _tenths(100 * change["foot_lift"]),
+                     _tenths(100 * change["bend"])]
+                    for run in demo.runs for leg, change in run.result.get("posture", {}).items()],
+                   note="No rule asks for these; Eq. 9 can meet every rule and still tilt, lift or bow a leg. "
+                        "Bow: how far the leg's centre line strays from straight, change over the run.")
     timings = Table("Steps", ["step", "seconds"], [[text, round(seconds, 1)] for text, seconds in demo.timings])
     notes = [f"{run.name}: {run.error}" for run in demo.runs if run.error]
     notes += [f"{run.name}: {message}" for run in demo.runs for message in run.result.get("messages", [])]
+    notes += [f"{run.name}: {warning}" for run in demo.runs for warning in posture_warnings(run.result.get("posture", {}))]
     write_html_report(
         html_path, title=f"allorules demo: a generated {demo.settings['preset']}, scaled", summary=summary,
-        tables=[runs, rules, timings], notes=notes,
+        tables=[runs, rules, stance, timings], notes=notes,
         images=[(demo.file("gallery"), "Gallery: columns global / biology-aware, rows minified / original / magnified, "
                  "drawn at the same length (paper Figures 17–18)"),
                 (demo.file("gallery true scale"), "The same at true relative size"),

@@ -2,7 +2,7 @@
 
 The file opens offline in any browser and can be mailed around: pictures are embedded as
 base64 ``data:`` URIs, the style sheet is inline, nothing is fetched from the network. It is
-written atomically. Used by ``allorules scale --html`` and ``allorules demo``.
+written atomically. Used by ``allorules demo``.
 """
 from __future__ import annotations
 

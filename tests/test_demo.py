@@ -70,6 +70,13 @@ def test_demo_reports(demo):
     assert "http://" not in html and "https://" not in html     # opens offline
     for run in demo.runs:
         assert run.name in html
+    # every leg of every biology-aware run in the stance table (the generated horse has four)
+    assert "Legs: stance and shape over the run" in html
+    for run in demo.runs:
+        if run.mode == "biology":
+            assert sorted(run.result["posture"]) == ["forelimbs[0]", "forelimbs[1]", "hindlimbs[0]", "hindlimbs[1]"]
+            for leg in run.result["posture"]:
+                assert f"<td>{run.name}</td><td>{leg}</td>" in html
     table = format_rule_table(demo.rule_rows())
     assert "chest-girth" in table and "biology_x0.9" in table
 

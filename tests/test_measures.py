@@ -590,8 +590,9 @@ def test_posture_change_measures_a_bowing_leg():
     assert bowing["tilt_degrees"] < 1.0 and abs(bowing["foot_lift"]) < 1e-9   # its ends stay put
 
 
-def test_a_run_that_bows_a_leg_says_so(caplog):
-    from allorules.biology_scaling import BiologyScalingResult, _report_posture
+def test_a_run_that_bows_a_leg_says_so():
+    from allorules.biology_scaling import posture_warnings
+    from allorules.measures import posture_change
 
     body = legs_body()
     for amplitude, warned in ((0.1, False), (0.3, True)):      # bows of 3 % and 10 % of the leg
@@ -599,12 +600,11 @@ def test_a_run_that_bows_a_leg_says_so(caplog):
         z = bowed[:, 2]
         leg = (bowed[:, 0] > 2.0) & (z < -2.0) & (z > -4.0)
         bowed[leg, 1] += amplitude * np.sin(np.pi * (-2.0 - z[leg]) / 2.0)
-        result = BiologyScalingResult(body=body, target_mass_ratio=1.0)
-        caplog.clear()
-        with caplog.at_level("WARNING", logger="allorules"):
-            _report_posture(result, body, body.with_vertices(bowed))
-        assert max(change["bend"] for change in result.posture.values()) > 0.03
-        assert ("forelimbs[1] bows by" in caplog.text) is warned, caplog.text
+        posture = posture_change(body, body.with_vertices(bowed))
+        assert max(change["bend"] for change in posture.values()) > 0.03
+        warnings = posture_warnings(posture)
+        assert any(warning.startswith("forelimbs[1] bows by") for warning in warnings) is warned, warnings
+        assert len(warnings) == int(warned)                  # and no lean: the leg's ends stayed put
 
 
 # ---------------------------------------------------------------------------------------------
