@@ -135,6 +135,7 @@ class BiologyScalingResult(ScalingResult):
     transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
     posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift, bend
     posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.posture)
+    warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
 
     def details(self) -> dict:
         return {
@@ -144,6 +145,7 @@ class BiologyScalingResult(ScalingResult):
             "rules": [rule.as_dict() for rule in self.rules],
             "constraints": {key: float(value) for key, value in self.constraints.items()},
             "posture": self.posture,
+            "warnings": list(self.warnings),
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE},
         }
 
@@ -314,7 +316,8 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
     except AllorulesError as error:   # a body whose limbs cannot be measured: say so, do not fail the run
         log.warning("posture not measured: %s", error)
         return
-    for warning in posture_warnings(result.posture):
+    result.warnings = posture_warnings(result.posture)
+    for warning in result.warnings:
         log.warning("%s", warning)
 
 

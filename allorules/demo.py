@@ -351,7 +351,6 @@ def _tenths(value: float) -> float:
 
 
 def _write_reports(demo: DemoResult, generated, body) -> None:
-    from .biology_scaling import posture_warnings
     from .export import write_json
     from .report_html import Table, write_html_report
 
@@ -400,7 +399,7 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
     timings = Table("Steps", ["step", "seconds"], [[text, round(seconds, 1)] for text, seconds in demo.timings])
     notes = [f"{run.name}: {run.error}" for run in demo.runs if run.error]
     notes += [f"{run.name}: {message}" for run in demo.runs for message in run.result.get("messages", [])]
-    notes += [f"{run.name}: {warning}" for run in demo.runs for warning in posture_warnings(run.result.get("posture", {}))]
+    notes += [f"{run.name}: {warning}" for run in demo.runs for warning in run.result.get("warnings", [])]
     write_html_report(
         html_path, title=f"allorules demo: a generated {demo.settings['preset']}, scaled", summary=summary,
         tables=[runs, rules, stance, timings], notes=notes,

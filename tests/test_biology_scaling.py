@@ -18,6 +18,7 @@ from allorules.biology_scaling import (
     CONSTRAINT_TOLERANCE,
     EXPONENT_TOLERANCE,
     MASS_TOLERANCE,
+    posture_warnings,
     scale_region,
     scale_with_ruleset,
     seam_strain,
@@ -72,6 +73,7 @@ def _check_output(result, body):
     assert sorted(report["posture"]) == ["forelimbs[0]", "forelimbs[1]", "hindlimbs[0]", "hindlimbs[1]"]
     for change in report["posture"].values():
         assert 0.0 <= change["tilt_degrees"] < 90.0 and math.isfinite(change["foot_lift"]) and math.isfinite(change["bend"])
+    assert report["warnings"] == posture_warnings(report["posture"])
 
 
 @pytest.mark.slow
