@@ -541,7 +541,7 @@ def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers:
 # Summary
 
 SUMMARY_COLUMNS = ("job", "mesh", "ruleset", "ratio", "status", "mass_ratio", "stress_ratio", "converged",
-                   "worst_rule", "worst_rule_residual", "seconds", "output", "error")
+                   "worst_rule", "worst_rule_residual", "warnings", "seconds", "output", "error")
 
 
 def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
@@ -555,7 +555,7 @@ def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
     figures = report.get("result") or {}
     row.update(status=report.get("status"), seconds=report.get("seconds"), error=report.get("error"),
                mass_ratio=figures.get("mass_ratio"), stress_ratio=figures.get("stress_ratio"),
-               converged=figures.get("converged"))
+               converged=figures.get("converged"), warnings="; ".join(figures.get("warnings") or []) or None)
     if report.get("status") == STATUS_DONE:
         row["output"] = str(Path(job.id) / job.output_name)
     rules = figures.get("rules") or []

@@ -165,6 +165,23 @@ def test_a_report_is_finished_only_with_its_fingerprint_and_mesh(inputs, tmp_pat
     assert not is_finished(job, folder, "abc")
 
 
+def test_the_summary_lists_what_each_output_should_be_looked_at_for(inputs, tmp_path):
+    copy_inputs(inputs, tmp_path)
+    bowed = "hindlimbs[0] bows by 6.0% of its length more than in the input"
+
+    def scale(job, folder):   # the report of a converged run whose output still shows something
+        warnings = [bowed, "the legs lean by up to 4.0°"] if job.ratio < 1 else []
+        return {"result": {"converged": True, "mass_ratio": job.ratio, "warnings": warnings}}
+
+    result = run_batch(write_manifest(tmp_path, MANIFEST), jobs=1, scale=scale)
+    with open(tmp_path / "out" / "summary.csv", newline="") as handle:
+        warnings = {row["job"]: row["warnings"] for row in csv.DictReader(handle)}
+    assert warnings["horse__global__x0.9"] == f"{bowed}; the legs lean by up to 4.0°"
+    assert warnings["horse__global__x1.1"] == ""
+    assert bowed in (tmp_path / "out" / "summary.md").read_text()
+    assert [row["warnings"] for row in result.rows if row["job"].endswith("x1.1")] == [None, None]
+
+
 def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
     """Workers share one terminal: a warning from deep inside a job (export, say) names the job."""
     import logging
