@@ -107,6 +107,22 @@ def test_default_folder_is_numbered_when_taken(tmp_path, monkeypatch):
     assert (tmp_path / DEFAULT_FOLDER / "report.html").read_text() == "earlier"
 
 
+@pytest.mark.slow
+def test_cli_names_the_runs_with_warnings(demo, monkeypatch, capsys):
+    """A warned run says so in the final summary, where the log line above it is easily missed."""
+    import copy
+
+    import allorules.demo
+
+    warned = copy.deepcopy(demo)
+    warned.runs[-1].result["warnings"] = ["hindlimbs[0] bows by 6.0% of its length more than in the input"]
+    monkeypatch.setattr(allorules.demo, "run_demo", lambda *args, **kwargs: warned)
+    assert main(["demo"]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith(("global_", "biology_"))}
+    assert lines[warned.runs[-1].name].endswith(" s), 1 warning: see the report")
+    assert all("warning" not in lines[run.name] for run in warned.runs[:-1])
+
+
 def test_cli_refuses_a_folder_with_files(tmp_path, capsys):
     (tmp_path / "keep.txt").write_text("mine")
     assert main(["demo", "-o", str(tmp_path), "--quick"]) == 2

@@ -52,7 +52,9 @@ def run(arguments: argparse.Namespace) -> int:
         stress = item.result.get("stress_ratio")
         print(f"{item.name:<14} mass ×{mass:.4f}" if mass is not None else f"{item.name:<14} mass   n/a  ", end="")
         print(f", stress ×{stress:.4f}" if stress is not None else "", end="")
-        print(f", {state} ({item.seconds:.0f} s)")
+        warnings = len(item.result.get("warnings", []))
+        print(f", {state} ({item.seconds:.0f} s)" + (f", {warnings} warning{'s' * (warnings > 1)}: see the report"
+                                                       if warnings else ""))
     print()
     print(f"wrote {len(demo.files)} files to {demo.folder}/ in {demo.seconds:.0f} s:")
     width = max(len(what) for what, _ in demo.files)
