@@ -271,7 +271,7 @@ def test_cli_local_scaling_writes_mesh_and_report(mesh_files, tmp_path, capsys):
     assert not np.allclose(trimesh.load(other, process=False).vertices, trimesh.load(out, process=False).vertices)
 
 
-def test_cli_posture_overrides_the_ruleset(mesh_files, tmp_path):
+def test_cli_posture_overrides_the_ruleset(mesh_files, tmp_path, capsys):
     from allorules.cli import main
 
     mesh, labels = mesh_files
@@ -282,6 +282,9 @@ def test_cli_posture_overrides_the_ruleset(mesh_files, tmp_path):
                      "--modes", str(MODES), "--no-cache", "--posture", posture, "-o", str(out), "--report", str(report)]) == 0
         reports[posture] = json.loads(report.read_text())
         assert reports[posture]["posture_setting"] == posture
+        # the terminal's last figures are the report's: lean, foot lift and bow
+        bend = max(change["bend"] for change in reports[posture]["posture"].values())
+        assert f"bow added up to {100 * bend:+.1f}% of a leg's length" in capsys.readouterr().out
     lift = {posture: max(abs(change["foot_lift"]) for change in data["posture"].values()) for posture, data in reports.items()}
     assert lift["keep"] < 0.002 < lift["free"]
 

@@ -92,8 +92,8 @@ def format_table(result) -> str:
         tilt = max(change["tilt_degrees"] for change in result.posture.values())
         lift = max(change["foot_lift"] for change in result.posture.values())
         bend = max(change["bend"] for change in result.posture.values())
-        lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length, a leg bows "
-                     f"{100 * bend:+.1f}% of its length (not rules; see the report's posture)")
+        lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length, bow added up to "
+                     f"{100 * bend:+.1f}% of a leg's length (not rules; see the report's posture)")
     return "\n".join(lines)
 
 
