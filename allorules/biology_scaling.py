@@ -44,7 +44,7 @@ from .basis import HarmonicBasis
 from .body import Body
 from .errors import AllorulesError, ScalingError, SegmentationError
 from .global_scaling import ScalingResult, StressGauge, check_mass_ratio, count_flipped_faces, step_basis, step_ratios
-from .posture import restore_limb_axes
+from .posture import restore_limb_axes, restore_limb_lines
 from .progress import RunProgress
 from .solver import StepTransform, cached_measure, energy_terms, solve_step
 from .specs import ConstraintContext
@@ -251,6 +251,8 @@ def scale_with_ruleset(
         following = _fresh(solution.body)
         if ruleset.solver.posture in ("keep", "upright"):
             following = following.with_vertices(restore_limb_axes(current, following))
+        if ruleset.solver.posture == "keep" and index < len(ratios) - 1:
+            following = following.with_vertices(restore_limb_lines(current, following))
         if solution.feet is not None:
             # turning a slanted leg upright moves its foot up or down a little (0.5 % of a leg per
             # step on the automatically labelled generated horse): put the feet back once more

@@ -13,12 +13,16 @@ rules measure:
 * :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
   after the step; the step's foot contact is then applied once more, since turning a slanted
   leg moves its foot (:func:`allorules.biology_scaling.scale_with_ruleset`).
+* :func:`restore_limb_lines` gives each leg's centre line, below its first cross-section, back
+  the shape it had at the step's start (a leg Eq. 9 bowed is straightened), after every step but
+  the last, so that the next step's carried-forward misses make up what it changed.
 
-``posture: keep`` (the default) does both, ``upright`` only the second, ``free`` neither (the
+``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
 paper's behaviour).
 
-Both move each leg as a rigid whole (the turn below a short blend at its top), so its length,
-girths and load-bearing section are what the step made them.
+The first two move each leg as a rigid whole (the turn below a short blend at its top), so its
+length, girths and load-bearing section are what the step made them; the third moves each
+cross-section as a whole, across the leg.
 """
 from __future__ import annotations
 
@@ -205,3 +209,55 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
         turned = after.junction + (vertices[index] - after.junction) @ rotation.T
         vertices[index] += weight[:, None] * (turned - vertices[index])
     return vertices
+
+
+def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
+    """``moved``'s vertices with each limb's centre line given back the shape it had in
+    ``reference``: a leg that Eq. 9 bowed is straightened, a leg that was bent (a hock) keeps
+    its bend.
+
+    Per limb part, the centre line is the chain of section centroids c_j, from the first section
+    (just below the junction) to the last (above the foot); its chord runs from the first
+    centroid to the last. On ``reference`` each centroid lies at a fraction t_j along the chord
+    plus an offset r_j across it. On ``moved``, section j is moved by
+    d_j = c_0 + t_j·chord + σ·Q r_j − c_j (σ the chord's change of length, Q the smallest rotation
+    between the chords), the part of it along the chord dropped; between sections d is
+    interpolated along the limb's field. d is 0 at the first and at the last section, and above
+    and below them, so the body, the leg's top and the foot stay where they are and nothing is
+    torn. The junction itself is left alone: moving it would move the body around the groin
+    (tried: faces flipped there; docs/biology-scaling.md, posture).
+    Bodies without limbs come back unchanged.
+    """
+    from .measures import carry_fields
+
+    vertices = moved.vertices.copy()
+    limbs = _limbs(reference)        # before carrying: the same limbs
+    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
+    for before, after in zip(limbs, _limbs(carried)):
+        if len(before.sections) < 2:
+            continue
+        # the centroids from the second section on, relative to the first: the last is the chord
+        line_start = _centroids(before)[1:] - _centroids(before)[0]
+        line_now = _centroids(after)[1:] - _centroids(after)[0]
+        chord_start, chord_now = line_start[-1], line_now[-1]
+        reach_start, reach_now = float(np.linalg.norm(chord_start)), float(np.linalg.norm(chord_now))
+        if reach_start == 0.0 or reach_now == 0.0:
+            continue
+        across_start = line_start - np.outer(line_start @ chord_start / reach_start ** 2, chord_start)   # r_j
+        rotation = _rotation_between(chord_start, chord_now)
+        if rotation is not None:
+            across_start = across_start @ rotation.T                                                  # Q r_j
+        target = np.outer(line_now @ chord_now / reach_now ** 2, chord_now) + (reach_now / reach_start) * across_start
+        shift = target - line_now
+        direction = chord_now / reach_now
+        shift -= np.outer(shift @ direction, direction)                 # across the leg only
+        shifts = np.vstack([np.zeros(3), shift])                        # d_0 = 0 (and d_last = 0)
+        index = after.mesh.vertex_index
+        for axis in range(3):   # interpolated along the field; 0 above the first and below the last section
+            vertices[index, axis] += np.interp(after.field, before.levels, shifts[:, axis], left=0.0, right=0.0)
+    return vertices
+
+
+def _centroids(limb) -> np.ndarray:
+    """The centroids of a limb's cross-sections, junction to foot, (sections, 3)."""
+    return np.array([section.loop.centroid for section in limb.sections])

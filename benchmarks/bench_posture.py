@@ -1,12 +1,13 @@
-"""The stance a run ends with, for each ``solver.posture``: legs' lean and feet's lift.
+"""The stance a run ends with, for each ``solver.posture``: legs' lean, feet's lift and legs' bow.
 
 Run: .venv/bin/python benchmarks/bench_posture.py [--vertices N] [--modes M] [--picture PNG]
 
 The generated horse (1,500 vertices, 300 modes by default) with ``quadruped`` at R = 0.5 and 2,
-posture free, upright and keep. Prints, per run, whether it converged, the largest lean and the
-largest foot lift (docs/biology-scaling.md, posture), how much the back pitched (the chest's
-centroid against the abdomen's, positive: nose up), and draws the outputs side by side at the
-same length (default docs/images/posture.png). Record results in docs/biology-scaling.md.
+posture free, upright and keep. Prints, per run, whether it converged, the largest lean, the
+largest foot lift and the largest bow added (docs/biology-scaling.md, posture), how much the
+back pitched (the chest's centroid against the abdomen's, positive: nose up), and draws the
+outputs side by side at the same length (default docs/images/posture.png). Record results in
+docs/biology-scaling.md.
 """
 from __future__ import annotations
 
@@ -49,18 +50,20 @@ def main() -> None:
     colors = region_colors(body.labels, body.region_names)
     meshes = {1.0: [(body.vertices, body.faces, "input", colors)], 0.5: [], 2.0: []}
     down = stance_down([limb for region in ("forelimbs", "hindlimbs") for limb in limb_sections(body, region)], body.frame)
-    print("| R | posture | converged | largest lean | largest foot lift | back pitch change | every rule within ±0.02 |")
-    print("|---|---|---|---|---|---|---|")
+    print("| R | posture | converged | largest lean | largest foot lift | largest bow added | back pitch change | "
+          "every rule within ±0.02 |")
+    print("|---|---|---|---|---|---|---|---|")
     for ratio in (0.5, 2.0):
         for posture in reversed(POSTURES):                       # free, upright, keep
             ruleset = replace(quadruped, solver=replace(quadruped.solver, posture=posture))
             result = scale_with_ruleset(body, ruleset, ratio, registry=registry, modes=arguments.modes, use_cache=False)
             lean = max(change["tilt_degrees"] for change in result.posture.values())
             lift = max(abs(change["foot_lift"]) for change in result.posture.values())
+            bow = max(change["bend"] for change in result.posture.values())
             within = all(abs(rule.error) <= 0.02 for rule in result.rules)
             pitch = back_pitch(result.body, down) - back_pitch(body, down)
             print(f"| {ratio:g} | {posture} | {'yes' if result.converged else 'no'} | {lean:.1f}° | "
-                  f"{100 * lift:.1f} % of a leg | {pitch:+.1f}° | {'yes' if within else 'no'} |")
+                  f"{100 * lift:.1f} % of a leg | {100 * bow:+.1f} % | {pitch:+.1f}° | {'yes' if within else 'no'} |")
             meshes[ratio].append((result.body.vertices, result.body.faces, f"×{ratio:g} {posture} ({lean:.1f}°, "
                                                                             f"feet {100 * lift:.0f}%)", colors))
     render_comparison(meshes[0.5] + meshes[1.0] + meshes[2.0], path=arguments.picture, normalise_size=True,

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from allorules.measures import limb_sections, posture_change, region_length
-from allorules.posture import FootContact, restore_limb_axes
+from allorules.measures import carry_fields, limb_sections, posture_change, region_length
+from allorules.posture import FootContact, restore_limb_axes, restore_limb_lines
 
 
 @pytest.fixture(scope="module")
@@ -41,6 +41,35 @@ def test_restore_limb_axes_turns_a_leaning_leg_back(animal):
     outside = np.ones(len(body.vertices), dtype=bool)
     outside[index] = False
     assert np.array_equal(restored[outside], leaning[outside])                    # only that leg moved
+
+
+def test_restore_limb_lines_straightens_a_bowed_leg_and_keeps_a_bent_one(animal):
+    body = animal.body()
+    # a body as it came, and the same body scaled (its legs' own bends kept), are left alone
+    assert np.allclose(restore_limb_lines(body, body.with_vertices(body.vertices)), body.vertices, rtol=0, atol=1e-12)
+    scaled = 1.7 * body.vertices + 3.0
+    assert np.allclose(restore_limb_lines(body, body.with_vertices(scaled)), scaled, rtol=0, atol=1e-9)
+    # bow one hind leg forwards (+x) between its first and last cross-sections, 10 % of its length
+    leg = limb_sections(body, "hindlimbs")[0]
+    index = leg.mesh.vertex_index
+    span = np.clip((leg.field - leg.levels[0]) / (leg.levels[-1] - leg.levels[0]), 0.0, 1.0)
+    bowed = body.vertices.copy()
+    bowed[index, 0] += 0.1 * leg.length * np.sin(np.pi * span)
+    assert posture_change(body, body.with_vertices(bowed))["hindlimbs[0]"]["bend"] > 0.05
+    restored = restore_limb_lines(body, body.with_vertices(bowed))
+    after = posture_change(body, body.with_vertices(restored))["hindlimbs[0]"]
+    assert abs(after["bend"]) < 0.002 and abs(after["foot_lift"]) < 1e-6        # its line back; the foot stays
+    still = np.ones(len(body.vertices), dtype=bool)
+    still[index[(leg.field > leg.levels[0]) & (leg.field < leg.levels[-1])]] = False
+    assert np.array_equal(restored[still], bowed[still])       # the body, the leg's top and its foot
+    # the bow sheared the leg's cross-sections (girths 1.1 % off); straightened, they are the input's
+    # again up to the interpolation between sections (0.2 %)
+    def girths(vertices):
+        return np.array([section.girth for section in
+                         limb_sections(carry_fields(body, body.with_vertices(vertices)), "hindlimbs")[0].sections])
+
+    sheared = np.abs(girths(bowed) / girths(body.vertices) - 1).max()
+    assert np.abs(girths(restored) / girths(body.vertices) - 1).max() < 0.25 * sheared
 
 
 def test_foot_contact_leaves_a_standing_body_alone(animal):

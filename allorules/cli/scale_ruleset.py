@@ -49,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "per-axis (default; METHOD §5, in the animal's own axes) or per-mode (on each mode's vector "
                              "length); overrides the ruleset's solver.transform")),
         ("--posture", dict(choices=("keep", "upright", "free"), help="the stance through the steps: keep (default; legs "
-                           "upright and feet on the ground), upright (legs only) or free (as Eq. 9 leaves them); "
+                           "upright, feet on the ground, legs' lines kept), upright (legs turned upright only) or free "
+                           "(as Eq. 9 leaves them); "
                            "overrides the ruleset's solver.posture")),
         ("--mass-ratio", dict(type=float, metavar="R", help="total body-mass ratio (2 doubles the mass)")),
         ("-o", dict(dest="output", metavar="OUT", help="output mesh (format from the extension)")),
