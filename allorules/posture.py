@@ -237,8 +237,8 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         if len(before.sections) < 2:
             continue
         # the centroids from the second section on, relative to the first: the last is the chord
-        line_start = _centroids(before)[1:] - _centroids(before)[0]
-        line_now = _centroids(after)[1:] - _centroids(after)[0]
+        centroids_start, centroids_now = _centroids(before), _centroids(after)
+        line_start, line_now = centroids_start[1:] - centroids_start[0], centroids_now[1:] - centroids_now[0]
         chord_start, chord_now = line_start[-1], line_now[-1]
         reach_start, reach_now = float(np.linalg.norm(chord_start)), float(np.linalg.norm(chord_now))
         if reach_start == 0.0 or reach_now == 0.0:
