@@ -385,6 +385,11 @@ class Limb:
     mesh: RegionPart
     junction_loop: Loop | None = None   # the junction's open boundary (None: the field's lowest vertex)
 
+    @property
+    def centroids(self) -> np.ndarray:
+        """The centroids of the cross-sections, junction to tip, (sections, 3): the leg's centre line."""
+        return np.array([section.loop.centroid for section in self.sections])
+
     def moved(self, part: RegionPart) -> "Limb":
         """The same limb (same loops, junction and tip) on a moved copy ``part`` of its mesh."""
         loops = [section.loop.moved(part.vertices) for section in self.sections]
@@ -546,7 +551,7 @@ def limb_bend(limb: Limb) -> float:
     out: it is one vertex, at the toe, and a hoof's toe sits off the leg's line."""
     if len(limb.sections) < 2:
         return 0.0
-    centroids = np.array([section.loop.centroid for section in limb.sections])
+    centroids = limb.centroids
     chord = centroids[-1] - limb.junction
     reach = float(np.linalg.norm(chord))
     if reach == 0.0:

@@ -50,6 +50,15 @@ def _limbs(body: Body) -> list:
             for limb in limb_sections(body, region)]
 
 
+def _limb_pairs(reference: Body, moved: Body) -> list[tuple]:
+    """Each limb of ``reference`` with the same limb on ``moved`` (same faces and labels), measured
+    on the same material loops (:func:`allorules.measures.carry_fields`)."""
+    from .measures import carry_fields
+
+    limbs = _limbs(reference)        # before carrying: the same limbs
+    return list(zip(limbs, _limbs(carry_fields(reference, moved.with_vertices(moved.vertices)))))
+
+
 def _smoothstep(ramp: np.ndarray) -> np.ndarray:
     ramp = np.clip(ramp, 0.0, 1.0)
     return ramp * ramp * (3.0 - 2.0 * ramp)
@@ -188,12 +197,8 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
     Bodies without limbs come back unchanged.
     """
-    from .measures import carry_fields
-
     vertices = moved.vertices.copy()
-    limbs = _limbs(reference)        # before carrying: the same limbs
-    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
-    for before, after in zip(limbs, _limbs(carried)):
+    for before, after in _limb_pairs(reference, moved):
         if not before.sections:
             continue
         rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
@@ -228,16 +233,12 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
     (tried: faces flipped there; docs/biology-scaling.md, posture).
     Bodies without limbs come back unchanged.
     """
-    from .measures import carry_fields
-
     vertices = moved.vertices.copy()
-    limbs = _limbs(reference)        # before carrying: the same limbs
-    carried = carry_fields(reference, moved.with_vertices(moved.vertices))
-    for before, after in zip(limbs, _limbs(carried)):
+    for before, after in _limb_pairs(reference, moved):
         if len(before.sections) < 2:
             continue
         # the centroids from the second section on, relative to the first: the last is the chord
-        centroids_start, centroids_now = _centroids(before), _centroids(after)
+        centroids_start, centroids_now = before.centroids, after.centroids
         line_start, line_now = centroids_start[1:] - centroids_start[0], centroids_now[1:] - centroids_now[0]
         chord_start, chord_now = line_start[-1], line_now[-1]
         reach_start, reach_now = float(np.linalg.norm(chord_start)), float(np.linalg.norm(chord_now))
@@ -256,8 +257,3 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         for axis in range(3):   # interpolated along the field; 0 above the first and below the last section
             vertices[index, axis] += np.interp(after.field, before.levels, shifts[:, axis], left=0.0, right=0.0)
     return vertices
-
-
-def _centroids(limb) -> np.ndarray:
-    """The centroids of a limb's cross-sections, junction to foot, (sections, 3)."""
-    return np.array([section.loop.centroid for section in limb.sections])
