@@ -1,8 +1,13 @@
 """The body being scaled: one triangle mesh with optional per-vertex region labels.
 
 :class:`Body` is the state that travels between preparation, segmentation, measurement,
-constraints and the solver. It is immutable in spirit: a deformation makes a new ``Body``
-through :meth:`Body.with_vertices`, which keeps faces and labels and drops derived caches.
+constraints and the solver, and what a segmenter plugin receives and returns. It is immutable in
+spirit: a deformation makes a new ``Body`` through :meth:`Body.with_vertices`, which keeps faces,
+labels, frame and labelling and drops what was measured on the old vertices.
+
+Build one from arrays: ``Body(vertices, faces)`` (n × 3 floats, f × 3 vertex indices); a labelled
+one with ``Body(vertices, faces, labels, region_names)`` where ``labels[i]`` indexes
+``region_names`` (or is ``UNLABELLED``).
 """
 from __future__ import annotations
 
@@ -22,13 +27,27 @@ class Frame:
     forward: np.ndarray   # from tail to head
 
 
+@dataclass(frozen=True)
+class Labelling:
+    """Who labelled a body's regions, and how sure it was."""
+
+    source: str                       # "segmenter auto-quadruped", "labels file horse.labels.json", ...
+    confidence: dict[str, float] = field(default_factory=dict)   # named margins, 0 a guess … 1 certain
+    notes: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict:
+        return {"source": self.source, "confidence": {key: float(value) for key, value in self.confidence.items()},
+                "notes": list(self.notes)}
+
+
 @dataclass
 class Body:
     """A closed-or-open triangle mesh plus what is known about its anatomy.
 
     ``labels[i]`` is the index into ``region_names`` of vertex ``i``'s region, or
-    ``UNLABELLED``. ``cache`` holds derived quantities (skeletons, capped meshes, ...) keyed by
-    whoever computes them; it is valid only for these exact vertices.
+    ``UNLABELLED``. ``labelling`` says who labelled it. ``measured`` holds what the measure stage
+    derived from these exact vertices (:class:`allorules.measure.cache.Measured`: region parts,
+    fields, skeletons, measured values); it is dropped by :meth:`with_vertices`.
     """
 
     vertices: np.ndarray
@@ -36,7 +55,8 @@ class Body:
     labels: np.ndarray | None = None
     region_names: tuple[str, ...] = ()
     frame: Frame | None = None
-    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    labelling: Labelling | None = None
+    measured: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
@@ -66,5 +86,11 @@ class Body:
         return mask[self.faces].sum(axis=1) >= 2
 
     def with_vertices(self, vertices: np.ndarray) -> "Body":
-        """The same body (faces, labels, frame) deformed to new vertex positions."""
-        return Body(vertices, self.faces, self.labels, self.region_names, self.frame)
+        """The same body (faces, labels, frame, labelling) deformed to new vertex positions."""
+        return Body(vertices, self.faces, self.labels, self.region_names, self.frame, self.labelling)
+
+    def with_labels(self, labels: np.ndarray, region_names: tuple[str, ...], labelling: Labelling | None = None,
+                    frame: Frame | None = None) -> "Body":
+        """The same surface with other regions (and, if given, who labelled them and the frame)."""
+        return Body(self.vertices, self.faces, labels, region_names, frame if frame is not None else self.frame,
+                    labelling if labelling is not None else self.labelling)

@@ -69,3 +69,19 @@ class RulesetError(AllorulesError):
         self.problem = message       # the message without its location
         self.location = location
         super().__init__(f"{location}: {message}" if location else message)
+
+
+class RulesetProblems(RulesetError):
+    """Several problems in one ruleset; ``problems`` holds each as a :class:`RulesetError`.
+
+    Its message is the first problem (and how many more there are), so it still reads as one
+    line; ``allorules ruleset check`` prints them all.
+    """
+
+    def __init__(self, problems: list[RulesetError]):
+        self.problems = list(problems)
+        first = self.problems[0]
+        more = len(self.problems) - 1
+        message = str(first) + (f" (and {more} more problem{'s' if more > 1 else ''}: run 'allorules ruleset check')" if more else "")
+        super().__init__(message)
+        self.location = first.location

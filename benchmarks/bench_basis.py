@@ -49,7 +49,7 @@ def machine_description() -> dict:
 
 
 def build_mesh(size: int, deformed: bool):
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     quadruped = generate_quadruped("horse", vertices=size)
     vertices = np.asarray(quadruped.vertices, dtype=np.float64).copy()
@@ -66,8 +66,8 @@ def build_mesh(size: int, deformed: bool):
 
 def run_case(arguments: argparse.Namespace) -> None:
     """Child process: one solve, reported as JSON on stdout."""
-    from allorules.eigensolver import smallest_eigenpairs
-    from allorules.laplacian import cotangent_laplacian, lumped_mass
+    from allorules.spectral.eigen import smallest_eigenpairs
+    from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
 
     vertices, faces = build_mesh(arguments.size, arguments.deformed)
     stiffness = cotangent_laplacian(vertices, faces)

@@ -20,8 +20,8 @@ import numpy as np
 import threadpoolctl
 import trimesh
 
-from allorules.eigensolver import smallest_eigenpairs
-from allorules.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.eigen import smallest_eigenpairs
+from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 

@@ -20,13 +20,13 @@ os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
 
 import numpy as np  # noqa: E402
 
-from allorules.biology_scaling import scale_with_ruleset  # noqa: E402
-from allorules.measures import limb_sections, stance_down  # noqa: E402
-from allorules.plugins import registry_for  # noqa: E402
-from allorules.posture import POSTURES  # noqa: E402
-from allorules.quadruped import generate_quadruped  # noqa: E402
-from allorules.render import region_colors, region_legend, render_comparison  # noqa: E402
-from allorules.rules import load_ruleset  # noqa: E402
+from allorules.measure.limbs import limb_sections, stance_down
+from allorules.mesh.quadruped import generate_quadruped
+from allorules.output.render import region_colors, region_legend, render_comparison
+from allorules.plugins.registry import registry_for
+from allorules.rules.model import POSTURES
+from allorules.rules.resolve import load_ruleset
+from allorules.runs.ruleset_run import scale_with_ruleset
 
 PICTURE = Path(__file__).resolve().parents[1] / "docs" / "images" / "posture.png"
 

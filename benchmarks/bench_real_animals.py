@@ -18,14 +18,14 @@ from pathlib import Path
 
 os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
 
-from allorules.biology_scaling import scale_with_ruleset  # noqa: E402
-from allorules.body import Body  # noqa: E402
-from allorules.errors import AllorulesError  # noqa: E402
-from allorules.plugins import registry_for  # noqa: E402
-from allorules.preparation import prepare_mesh  # noqa: E402
-from allorules.render import region_colors, render_gallery  # noqa: E402
-from allorules.rules import load_ruleset  # noqa: E402
-from allorules.segmentation import label_quadruped  # noqa: E402
+from allorules.body import Body
+from allorules.errors import AllorulesError
+from allorules.mesh.repair import prepare_mesh
+from allorules.output.render import region_colors, render_gallery
+from allorules.plugins.registry import registry_for
+from allorules.rules.resolve import load_ruleset
+from allorules.runs.ruleset_run import scale_with_ruleset
+from allorules.segment.labeller import label_quadruped
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 PICTURE = Path(__file__).resolve().parents[1] / "docs" / "images" / "real_animals.png"

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from allorules.render import render_views
+from allorules.output.render import render_views
 
 
 def timed(function) -> tuple[float, float]:
@@ -22,8 +22,8 @@ def timed(function) -> tuple[float, float]:
 
 
 def mplot3d_render(vertices: np.ndarray, faces: np.ndarray, path: Path) -> None:
-    from matplotlib.figure import Figure
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     figure = Figure(figsize=(9, 6), dpi=100)

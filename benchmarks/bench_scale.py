@@ -17,10 +17,10 @@ from pathlib import Path
 
 os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
 
-from allorules.biology_scaling import scale_with_ruleset  # noqa: E402
-from allorules.body import Body  # noqa: E402
-from allorules.plugins import registry_for  # noqa: E402
-from allorules.rules import load_ruleset  # noqa: E402
+from allorules.body import Body
+from allorules.plugins.registry import registry_for
+from allorules.rules.resolve import load_ruleset
+from allorules.runs.ruleset_run import scale_with_ruleset
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -65,8 +65,8 @@ def main() -> None:
     parser.add_argument("--skip-generated", action="store_true")
     arguments = parser.parse_args()
     if not arguments.skip_real and (MESHES / "horse.obj").exists():
-        from allorules.preparation import prepare_mesh
-        from allorules.segmentation import label_quadruped
+        from allorules.mesh.repair import prepare_mesh
+        from allorules.segment.labeller import label_quadruped
 
         prepared = prepare_mesh(MESHES / "horse.obj")
         started = time.perf_counter()
@@ -74,7 +74,7 @@ def main() -> None:
         print(f"real horse labelled in {time.perf_counter() - started:.1f} s")
         run("real horse (shared/meshes/horse.obj)", body, arguments.modes, arguments.mass_ratio)
     if not arguments.skip_generated:
-        from allorules.quadruped import generate_quadruped
+        from allorules.mesh.quadruped import generate_quadruped
 
         run("generated horse", generate_quadruped("horse", vertices=arguments.vertices).body(), arguments.modes,
             arguments.mass_ratio)

@@ -33,8 +33,8 @@ os.environ.setdefault("ALLORULES_CACHE_DIR", "off")
 
 import numpy as np  # noqa: E402
 
-from allorules.basis import compute_basis  # noqa: E402
-from allorules.quadruped import generate_quadruped  # noqa: E402
+from allorules.mesh.quadruped import generate_quadruped
+from allorules.spectral.basis import compute_basis
 
 
 def bench_deformation(vertices: np.ndarray) -> np.ndarray:
@@ -48,9 +48,9 @@ def bench_deformation(vertices: np.ndarray) -> np.ndarray:
 
 def step_deformation(body, basis) -> np.ndarray:
     """One step of a quadruped run (r = 1.1) from ``body``."""
-    from allorules.plugins import registry_for
-    from allorules.rules import load_ruleset
-    from allorules.solver import solve_step
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+    from allorules.solve.step import solve_step
 
     registry = registry_for(None)
     return solve_step(body, basis, load_ruleset("quadruped", registry), registry, 1.1).body.vertices

@@ -28,6 +28,6 @@ def shared_meshes() -> Path:
 @pytest.fixture(scope="session")
 def generated_horse():
     """The generated horse (~3000 vertices) with labels and truth; made once per test session."""
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     return generate_quadruped("horse", 3000)

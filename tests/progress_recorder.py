@@ -1,7 +1,7 @@
 """A :class:`allorules.progress.RunProgress` that records what a run told it (for tests)."""
 from __future__ import annotations
 
-from allorules.progress import RunProgress
+from allorules.runs.progress import RunProgress
 
 
 class RecordingProgress(RunProgress):

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from allorules import cache
-from allorules.basis import compute_basis, detail, reconstruct, transform
-from allorules.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.basis import compute_basis, detail, reconstruct, transform
+from allorules.spectral.cache import basis_key, cache_directory, load
+from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +70,8 @@ def test_cache_hit_is_identical_and_corrupt_file_is_recomputed(sphere, tmp_path,
     data = bytearray(files[0].read_bytes())
     data[len(data) // 2] ^= 0xFF
     files[0].write_bytes(bytes(data))
-    key = cache.basis_key(sphere.vertices, sphere.faces, 20)
-    assert cache.load(key, len(sphere.vertices), 20) is None
+    key = basis_key(sphere.vertices, sphere.faces, 20)
+    assert load(key, len(sphere.vertices), 20) is None
     third = compute_basis(sphere.vertices, sphere.faces, 20)
     assert np.allclose(third.eigenvalues, first.eigenvalues, rtol=1e-8, atol=1e-10)
     # Same subspace (the sphere's eigenspaces are degenerate, so compare projectors).
@@ -84,16 +84,16 @@ def test_stale_cache_entry_for_other_mesh_is_not_used(sphere, tmp_path, monkeypa
     monkeypatch.setenv("ALLORULES_CACHE_DIR", str(tmp_path))
     compute_basis(sphere.vertices, sphere.faces, 20)
     moved = sphere.vertices * 1.01
-    assert cache.basis_key(moved, sphere.faces, 20) != cache.basis_key(sphere.vertices, sphere.faces, 20)
+    assert basis_key(moved, sphere.faces, 20) != basis_key(sphere.vertices, sphere.faces, 20)
     # A file whose stored key does not match its name is rejected.
     stored = next(tmp_path.glob("*.npz"))
-    wrong = tmp_path / f"{cache.basis_key(moved, sphere.faces, 20)}.npz"
+    wrong = tmp_path / f"{basis_key(moved, sphere.faces, 20)}.npz"
     stored.rename(wrong)
-    assert cache.load(cache.basis_key(moved, sphere.faces, 20), len(sphere.vertices), 20) is None
+    assert load(basis_key(moved, sphere.faces, 20), len(sphere.vertices), 20) is None
 
 
 def test_cache_can_be_switched_off(sphere, tmp_path, monkeypatch):
     monkeypatch.setenv("ALLORULES_CACHE_DIR", "off")
-    assert cache.cache_directory() is None
+    assert cache_directory() is None
     compute_basis(sphere.vertices, sphere.faces, 10)
     assert not list(tmp_path.glob("*.npz"))

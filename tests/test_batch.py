@@ -8,7 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from allorules.batch import (
+from allorules.cli import main
+from allorules.errors import AllorulesError
+from allorules.runs.batch import (
     ManifestError,
     is_finished,
     job_fingerprint,
@@ -17,8 +19,6 @@ from allorules.batch import (
     run_job,
     scale_job,
 )
-from allorules.cli import main
-from allorules.errors import AllorulesError
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def inputs(tmp_path_factory):
     """A tiny generated horse with its true labels, and a ball (no legs: auto-labelling fails)."""
     import trimesh
 
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     folder = tmp_path_factory.mktemp("batch-inputs")
     horse = generate_quadruped("horse", 600)
@@ -94,7 +94,7 @@ def test_interrupted_batch_resumes_without_redoing_finished_jobs(inputs, tmp_pat
     # The written mesh has the asked mass ratio (measured on the file).
     import trimesh
 
-    from allorules.measures import enclosed_volume
+    from allorules.mesh.geometry import enclosed_volume
 
     def volume(path):
         mesh = trimesh.load(path, process=False)

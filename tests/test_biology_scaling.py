@@ -14,20 +14,20 @@ import textwrap
 import numpy as np
 import pytest
 
-from allorules.biology_scaling import (
+from allorules.body import Body
+from allorules.errors import ScalingError, SegmentationError
+from allorules.mesh.geometry import count_flipped_faces
+from allorules.plugins.registry import registry_for
+from allorules.rules.overrides import override_exponents
+from allorules.rules.resolve import load_ruleset
+from allorules.runs.local import scale_region, seam_strain
+from allorules.runs.results import (
     CONSTRAINT_TOLERANCE,
     EXPONENT_TOLERANCE,
     MASS_TOLERANCE,
-    posture_warnings,
-    scale_region,
-    scale_with_ruleset,
-    seam_strain,
 )
-from allorules.body import Body
-from allorules.errors import ScalingError, SegmentationError
-from allorules.global_scaling import count_flipped_faces, step_ratios
-from allorules.plugins import registry_for
-from allorules.rules import load_ruleset, override_exponents
+from allorules.runs.ruleset_run import posture_warnings, scale_with_ruleset
+from allorules.runs.steps import step_ratios
 
 VERTICES = 1000
 MODES = 300
@@ -40,7 +40,7 @@ def _no_cache(monkeypatch):
 
 @pytest.fixture(scope="module")
 def animal():
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     return generate_quadruped("horse", vertices=VERTICES)
 
@@ -110,7 +110,7 @@ def test_isometric_ruleset_is_uniform_scaling(animal, registry):
     assert len(result.steps) == 8
     progress.check(8, [step.evaluations for step in result.steps])
     body = animal.body()
-    from allorules.laplacian import lumped_mass
+    from allorules.spectral.laplacian import lumped_mass
 
     weights = lumped_mass(body.vertices, body.faces)
     centre = weights @ body.vertices / weights.sum()
@@ -124,7 +124,7 @@ def test_isometric_ruleset_is_uniform_scaling(animal, registry):
 
 
 def test_neck_length_measure_does_not_depend_on_place(animal):
-    from allorules.measures import region_length
+    from allorules.measure.length import region_length
 
     body = animal.body()
     moved = body.with_vertices(body.vertices + np.array([5.0, 0.0, 0.0]))
@@ -193,7 +193,7 @@ def test_tolerances_are_the_documented_ones():
 
 @pytest.fixture(scope="module")
 def basis(animal):
-    from allorules.basis import compute_basis
+    from allorules.spectral.basis import compute_basis
 
     return compute_basis(animal.vertices, animal.faces, MODES, use_cache=False)
 
@@ -207,7 +207,7 @@ def test_local_power_law_has_no_seam_arithmetic_tears(animal, basis, form):
     moved = np.linalg.norm(grown.vertices - body.vertices, axis=1)
     assert moved[head].mean() > 2 * moved[~head].mean()          # the change is mostly in the head
     # a comparable arithmetic edit: the head's vertices scaled by the factor its size changed by
-    from allorules.measures import region_mass
+    from allorules.measure.mass import region_mass
 
     factor = (region_mass(grown, "head") / region_mass(body, "head")) ** (1 / 3)
     assert factor > 1.02
@@ -230,11 +230,10 @@ def test_local_scaling_refuses_unknown_region(animal, basis):
 
 
 def _parser():
-    from allorules.cli import scale_ruleset
+    from allorules.cli import scale
 
     parser = argparse.ArgumentParser()
-    parser.add_argument("mesh")
-    scale_ruleset.add_arguments(parser)
+    scale.register(parser.add_subparsers())
     return parser
 
 
@@ -308,7 +307,7 @@ def test_cli_unconverged_run_fails_without_writing_the_mesh(mesh_files, tmp_path
 
 
 def test_cli_refuses_bad_requests(mesh_files, tmp_path):
-    from allorules.cli import scale_ruleset
+    from allorules.cli import scale
     from allorules.errors import AllorulesError
 
     mesh, labels = mesh_files
@@ -321,7 +320,7 @@ def test_cli_refuses_bad_requests(mesh_files, tmp_path):
     ]
     for argv, message in cases:
         with pytest.raises(AllorulesError, match=message):
-            scale_ruleset.run(_parser().parse_args(argv))
+            scale.run(_parser().parse_args(["scale"] + argv))
 
 
 def test_local_scaling_of_a_turned_mesh_is_the_same_edit_turned(animal, basis):
@@ -331,7 +330,7 @@ def test_local_scaling_of_a_turned_mesh_is_the_same_edit_turned(animal, basis):
     from scipy.spatial.transform import Rotation
 
     from allorules.body import Frame
-    from allorules.solver import anatomical_axes
+    from allorules.solve.transform import anatomical_axes
 
     body = animal.body()
     rotation = Rotation.from_euler("xyz", [40, 25, -70], degrees=True).as_matrix()
@@ -358,7 +357,7 @@ def test_misses_of_earlier_steps_are_carried_forward_not_added_up(animal, regist
     of an output disagree). Seven such misses would put the mass 8.7 % over; carried forward,
     only the last step's 1.2 % is left (and the stress constraint, compared with the input, is
     met the same way)."""
-    import allorules.biology_scaling as biology_scaling
+    import allorules.runs.ruleset_run as biology_scaling
 
     restore = biology_scaling.restore_limb_axes
 
@@ -383,8 +382,8 @@ def test_low_poly_dog_scales_standing(shared_meshes, registry):
     """The shared low-poly game dog (485 vertices after its seams are merged, labelled
     automatically): before its heart girth was cut from the whole torso it could not be measured
     at all; upright only, its hind feet ended 25 % of a leg up at R = 2."""
-    from allorules.preparation import prepare_mesh
-    from allorules.segmentation import label_quadruped
+    from allorules.mesh.repair import prepare_mesh
+    from allorules.segment.labeller import label_quadruped
 
     prepared = prepare_mesh(shared_meshes / "dog-lowpoly.obj")
     body = label_quadruped(Body(prepared.vertices, prepared.faces))

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from allorules.cli import main
-from allorules.demo import DEFAULT_FOLDER, DemoError, choose_folder, format_rule_table, run_demo
+from allorules.runs.demo import (
+    DEFAULT_FOLDER,
+    DemoError,
+    choose_folder,
+    format_rule_table,
+    run_demo,
+)
 
 PROMISED = ["original.obj", "labels.json", "regions.png", "gallery.png", "gallery_true_scale.png", "demo.json",
             "report.html"]
@@ -38,7 +44,7 @@ def test_demo_meshes_reach_their_mass_ratios(demo):
     """Measured on the written files, not on the run's own numbers."""
     import trimesh
 
-    from allorules.measures import enclosed_volume
+    from allorules.mesh.geometry import enclosed_volume
 
     original = trimesh.load(demo.folder / "original.obj", process=False)
     volume = enclosed_volume(np.asarray(original.vertices), np.asarray(original.faces))
@@ -112,11 +118,11 @@ def test_cli_names_the_runs_with_warnings(demo, monkeypatch, capsys):
     """A warned run says so in the final summary, where the log line above it is easily missed."""
     import copy
 
-    import allorules.demo
+    import allorules.runs.demo
 
     warned = copy.deepcopy(demo)
     warned.runs[-1].result["warnings"] = ["hindlimbs[0] bows by 6.0% of its length more than in the input"]
-    monkeypatch.setattr(allorules.demo, "run_demo", lambda *args, **kwargs: warned)
+    monkeypatch.setattr(allorules.runs.demo, "run_demo", lambda *args, **kwargs: warned)
     assert main(["demo"]) == 0
     lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith(("global_", "biology_"))}
     assert lines[warned.runs[-1].name].endswith(" s), 1 warning: see the report")
@@ -134,7 +140,7 @@ def test_measure_writes_a_picture(tmp_path, capsys):
     """``measure --png``: regions in colour and the load-bearing section marked, without a display."""
     import trimesh
 
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     horse = generate_quadruped("horse", 600)
     trimesh.Trimesh(horse.vertices, horse.faces, process=False).export(tmp_path / "horse.obj")

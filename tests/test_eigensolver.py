@@ -9,8 +9,8 @@ import pytest
 import scipy.linalg
 import trimesh
 
-from allorules.eigensolver import smallest_eigenpairs, terminal_progress
-from allorules.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.eigen import smallest_eigenpairs
+from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -150,10 +150,6 @@ def test_progress_is_reported(capsule):
     assert [done for done, _ in calls] == sorted(done for done, _ in calls)
 
 
-def test_terminal_progress_is_quiet_off_a_terminal(capsys):
-    assert terminal_progress("basis") is None   # pytest captures stderr: not a terminal
-
-
 def test_invalid_arguments(capsule):
     stiffness, mass = capsule
     with pytest.raises(ValueError):
@@ -180,7 +176,7 @@ def test_real_horse_against_eigsh():
 def test_default_bands_on_an_animal_match_dense():
     """The default path (many bands of the default size, Lanczos without restarts) on an animal's
     Laplacian: every pair of the dense reference, none missing or duplicated."""
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     animal = generate_quadruped("horse", vertices=2800)
     stiffness, mass = operators(np.asarray(animal.vertices, dtype=float), np.asarray(animal.faces))
@@ -192,7 +188,7 @@ def test_default_bands_on_an_animal_match_dense():
 
 
 def test_rounding_noise_is_not_a_new_krylov_direction():
-    from allorules.eigensolver import _orthonormal_with_factor
+    from allorules.spectral.eigen import _orthonormal_with_factor
 
     rng = np.random.default_rng(3)
     mass = rng.uniform(0.5, 2.0, 200)
@@ -206,7 +202,7 @@ def test_rounding_noise_is_not_a_new_krylov_direction():
 
 def test_accepted_vectors_are_put_in_order_in_place():
     """The store the bands write into gathers any subset of its columns, in any order."""
-    from allorules.eigensolver import _ColumnStore
+    from allorules.spectral.eigen import _ColumnStore
 
     rng = np.random.default_rng(11)
     for _ in range(100):

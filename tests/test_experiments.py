@@ -8,8 +8,7 @@ import pytest
 from scipy.fft import dct
 
 from allorules.cli import main
-from allorules.scaling import global_allometric
-from allorules.experiments import (
+from allorules.spectral.experiments import (
     dct_eigenvalues,
     global_experiment,
     local_experiment,
@@ -18,6 +17,7 @@ from allorules.experiments import (
     power_law_signal,
     spectral_fit,
 )
+from allorules.spectral.power_laws import global_allometric
 
 
 def test_signal_has_the_requested_power_law():

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from allorules import export
+from allorules import files
 from allorules.errors import MeshError
-from allorules.export import atomic_write, default_output_path, save_mesh, vertex_normals
+from allorules.files import atomic_write, default_output_path
+from allorules.mesh.geometry import vertex_normals
+from allorules.output.export import save_mesh
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -194,7 +196,7 @@ def test_missing_material_library_is_reported_not_fatal(textured_cube: Path, tmp
 
 
 def test_positions_from_prepared_mesh_keep_the_input_layout(tmp_path: Path) -> None:
-    preparation = pytest.importorskip("allorules.preparation")
+    from allorules.mesh.repair import prepare_mesh
     # A ball whose every face corner has its own UV (seams everywhere), as game assets often do.
     sphere = trimesh.creation.icosphere(subdivisions=2)
     corners = sphere.vertices[sphere.faces.reshape(-1)]
@@ -206,7 +208,7 @@ def test_positions_from_prepared_mesh_keep_the_input_layout(tmp_path: Path) -> N
     path.write_text("\n".join(lines) + "\n")
     (tmp_path / "ball.mtl").write_text("newmtl Fur\nKd 0.5 0.4 0.3\n")
 
-    prepared = preparation.prepare_mesh(path)
+    prepared = prepare_mesh(path)
     assert len(prepared.vertices) == len(sphere.vertices) < len(prepared.source.vertices)  # seams merged
     moved = prepared.vertices * 1.5
     positions = prepared.source_positions(moved)
@@ -332,7 +334,7 @@ def test_failure_mid_way_leaves_no_partial_file(tmp_path: Path, monkeypatch) -> 
     def failing_fsync(descriptor: int) -> None:  # the data is in the temporary file by now
         raise OSError("disk full")
 
-    monkeypatch.setattr(export.os, "fsync", failing_fsync)
+    monkeypatch.setattr(files.os, "fsync", failing_fsync)
     with pytest.raises(OSError, match="disk full"):
         save_mesh(output, box.vertices, box.faces)
     assert not output.exists()

@@ -8,14 +8,9 @@ import pytest
 
 from allorules.body import Body
 from allorules.errors import ScalingError
-from allorules.global_scaling import (
-    check_mass_ratio,
-    count_flipped_faces,
-    scale_globally,
-    scale_globally_raw,
-    step_ratios,
-)
-from allorules.measures import enclosed_volume
+from allorules.mesh.geometry import count_flipped_faces, enclosed_volume
+from allorules.runs.global_run import scale_globally, scale_globally_raw
+from allorules.runs.steps import check_mass_ratio, step_ratios
 
 
 @pytest.fixture(autouse=True)
@@ -192,7 +187,7 @@ def test_raw_identity_and_direction_of_alpha(bone):
 
 
 def _generated(preset: str, vertices: int):
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     return quadruped.generate_quadruped(preset, vertices=vertices)
 
 
@@ -201,14 +196,13 @@ QUADRUPED_VERTICES = 1000
 
 @pytest.fixture(scope="module")
 def horse():
-    quadruped = pytest.importorskip("allorules.quadruped")
-    pytest.importorskip("allorules.measures")
+    from allorules.mesh import quadruped
     generated = quadruped.generate_quadruped("horse", vertices=QUADRUPED_VERTICES)
     return generated, generated.body()
 
 
 def _mean_leg(body, region, quantity):
-    from allorules.measures import limb_sections
+    from allorules.measure.limbs import limb_sections
 
     limbs = limb_sections(body, region)
     if quantity == "length":
@@ -228,8 +222,12 @@ def test_generated_horse_legs_are_measured_as_the_generator_built_them(horse):
 
 
 def test_stress_gauge_follows_the_material(horse):
-    from allorules.global_scaling import StressGauge
-    from allorules.measures import SectionChoice, load_bearing_section, peak_stress
+    from allorules.measure.stress import (
+        SectionChoice,
+        StressGauge,
+        load_bearing_section,
+        peak_stress,
+    )
 
     generated, body = horse
     gauge = StressGauge.choose(body)
@@ -259,7 +257,8 @@ def test_body_without_limbs_is_refused(bone):
 @pytest.mark.slow
 @pytest.mark.parametrize("ratio", [2.0, 0.5])
 def test_generated_horse_mass_ratio(horse, ratio):
-    from allorules.measures import body_mass, peak_stress
+    from allorules.measure.mass import body_mass
+    from allorules.measure.stress import peak_stress
 
     generated, body = horse
     result = scale_globally(body, ratio, use_cache=False)
@@ -355,7 +354,7 @@ def test_cli_mass_ratio_without_limbs_fails_clearly(bone_file, tmp_path, capsys)
 def test_generated_horse_alpha_direction(horse):
     """What α > 0 does to a body (docs/method.md quotes these numbers): legs thicken relative to
     their length and the peak stress drops; α < 0 the reverse."""
-    from allorules.measures import peak_stress
+    from allorules.measure.stress import peak_stress
 
     generated, body = horse
     for alpha in (0.1, -0.1):

@@ -5,28 +5,30 @@ import numpy as np
 import pytest
 import trimesh
 
-from allorules import measures
 from allorules.body import Body, Frame
 from allorules.errors import MeasurementError
-from allorules.measures import (
-    SectionChoice,
-    body_mass,
-    capped,
-    enclosed_volume,
-    limb_sections,
-    load_bearing_section,
-    peak_stress,
-    region_girth,
-    region_length,
-    region_mass,
-)
-from allorules.sections import (
+from allorules.measure.cache import measured
+from allorules.measure.girth import chest_girth, region_girth, torso_axis
+from allorules.measure.length import region_length, region_skeleton
+from allorules.measure.limbs import limb_sections
+from allorules.measure.mass import body_mass, capped, region_mass
+from allorules.measure.parts import carry_fields, region_parts
+from allorules.measure.sections import (
     boundary_loops,
     fiedler_vector,
     isocontour_loops,
     skeleton,
     skeleton_diameter,
 )
+from allorules.measure.stress import (
+    JUNCTION_SKIP,
+    TIP_SKIP,
+    SectionChoice,
+    load_bearing_section,
+    peak_stress,
+)
+from allorules.mesh.geometry import enclosed_volume
+from allorules.mesh.quadruped import generate_quadruped
 
 # ---------------------------------------------------------------------------------------------
 # Shapes with known answers
@@ -134,7 +136,7 @@ def test_open_cylinder_is_capped_for_volume():
     # the input arrays are untouched
     assert len(faces) == 2 * 8 * 32
     # the capping plan is topology: made once, it caps the same mesh moved (a trial mesh) exactly
-    from allorules.preparation import hole_caps
+    from allorules.mesh.topology import hole_caps
 
     plan = hole_caps(faces, len(vertices))
     moved = vertices * np.array([2.0, 0.5, 1.0]) + 7.0
@@ -185,6 +187,16 @@ def test_plane_section_of_a_sphere_is_a_great_circle():
     assert len(loops) == 1
     assert loops[0].girth == pytest.approx(6 * np.pi, rel=2e-3)
     assert loops[0].area == pytest.approx(9 * np.pi, rel=4e-3)
+
+
+def test_mesh_plane_section_segments_go_round_a_great_circle_counter_clockwise():
+    from allorules.mesh.geometry import plane_section
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=3.0)
+    start, end, crossed = plane_section(sphere.vertices, sphere.faces, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert np.linalg.norm(end - start, axis=1).sum() == pytest.approx(6 * np.pi, rel=2e-3)
+    assert 0.5 * np.cross(start, end)[:, 2].sum() == pytest.approx(9 * np.pi, rel=4e-3)   # counter-clockwise about +z
+    assert len(crossed) == len(start) and set(crossed) <= set(range(len(sphere.faces)))
 
 
 def test_open_chains_at_the_boundary_are_dropped_unless_asked_for():
@@ -261,12 +273,12 @@ def test_load_bearing_section_is_the_smallest_away_from_junction_and_tip():
     chosen = load_bearing_section(body)
     assert chosen.region == "forelimbs"
     # the smallest section inside the window is at its tip-side end, on the hemisphere
-    assert chosen.section.fraction == pytest.approx(1.0 - measures.TIP_SKIP, abs=0.03)
+    assert chosen.section.fraction == pytest.approx(1.0 - TIP_SKIP, abs=0.03)
     limb = limb_sections(body, "forelimbs")[chosen.part]
     depth_into_cap = -4.0 - chosen.section.loop.centroid[2]
     assert depth_into_cap > 0
     assert chosen.area == pytest.approx(np.pi * (1 - depth_into_cap**2), rel=0.01)
-    window = [s.area for s in limb.sections if measures.JUNCTION_SKIP <= s.fraction <= 1 - measures.TIP_SKIP]
+    window = [s.area for s in limb.sections if JUNCTION_SKIP <= s.fraction <= 1 - TIP_SKIP]
     assert chosen.area == pytest.approx(min(window))
     assert peak_stress(body) == pytest.approx(body_mass(body) / chosen.area)
 
@@ -332,10 +344,10 @@ def test_chest_girth_is_the_largest_section_behind_the_forelimbs():
     # without forelimbs the largest chest section is at the front
     assert region_girth(torso_body(with_forelimbs=False), "chest") == pytest.approx(2 * np.pi * 2.3, rel=0.01)
     # the axis derived from the labels points from abdomen to chest, close to the true axis
-    assert measures.torso_axis(body) @ [0.0, 0.0, 1.0] > np.cos(np.radians(3.0))
+    assert torso_axis(body) @ [0.0, 0.0, 1.0] > np.cos(np.radians(3.0))
     # a frame gives the axis exactly
     framed = torso_body(frame=Frame(up=np.array([0.0, 1.0, 0.0]), forward=np.array([0.0, 0.0, 1.0])))
-    assert np.allclose(measures.torso_axis(framed), [0.0, 0.0, 1.0])
+    assert np.allclose(torso_axis(framed), [0.0, 0.0, 1.0])
     assert region_girth(framed, "chest") == pytest.approx(2 * np.pi * (2.0 + 0.1 * rear_of_patch), rel=0.01)
     assert region_girth(body, "abdomen") == pytest.approx(2 * np.pi * 2.0, rel=0.01)
 
@@ -356,7 +368,7 @@ def test_chest_girth_follows_the_forelimbs_without_jumps():
 
     fresh = np.array([region_girth(stretched(amount), "chest") for amount in stretches])
     region_girth(body, "chest")
-    carried = np.array([region_girth(measures.carry_fields(body, stretched(amount)), "chest") for amount in stretches])
+    carried = np.array([region_girth(carry_fields(body, stretched(amount)), "chest") for amount in stretches])
     for girths in (fresh, carried):
         steps = np.diff(girths)
         assert np.all(steps > 0)                                     # moving forward, the chest is wider
@@ -377,15 +389,15 @@ def test_carried_fields_measure_a_deformed_body_on_the_same_curves():
     reference_length = region_length(reference, "forelimbs")
     reference_girth = region_girth(reference, "forelimbs")
     stretch = np.array([1.0, 1.0, 1.2])
-    stretched = measures.carry_fields(reference, reference.with_vertices(reference.vertices * stretch))
-    assert "measures.fields:forelimbs" in stretched.cache
+    stretched = carry_fields(reference, reference.with_vertices(reference.vertices * stretch))
+    assert "forelimbs" in measured(stretched).fields
     assert region_length(stretched, "forelimbs") == pytest.approx(1.2 * reference_length, rel=0.01)
     assert region_girth(stretched, "forelimbs") == pytest.approx(reference_girth, rel=0.005)
     fresh = reference.with_vertices(reference.vertices * stretch)
     assert region_length(fresh, "forelimbs") == pytest.approx(region_length(stretched, "forelimbs"), rel=0.01)
     other = Body(reference.vertices, reference.faces[::-1], reference.labels, reference.region_names)
     with pytest.raises(ValueError, match="same faces"):
-        measures.carry_fields(reference, other)
+        carry_fields(reference, other)
 
 
 def test_a_short_wide_tube_between_two_openings_is_measured_along_its_length():
@@ -405,7 +417,7 @@ def test_a_short_wide_tube_between_two_openings_is_measured_along_its_length():
 
 @pytest.fixture(scope="module", params=["horse", "elephant", "giraffe"])
 def animal(request):
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     return quadruped.generate_quadruped(request.param, vertices=8000)
 
 
@@ -429,7 +441,7 @@ def test_quadruped_peak_stress_is_defined_and_scales_isometrically(animal):
     body = animal.body()
     chosen = load_bearing_section(body)
     assert chosen.region in ("forelimbs", "hindlimbs")
-    assert measures.JUNCTION_SKIP <= chosen.section.fraction <= 1 - measures.TIP_SKIP
+    assert JUNCTION_SKIP <= chosen.section.fraction <= 1 - TIP_SKIP
     sigma = peak_stress(body)
     assert np.isfinite(sigma) and sigma > 0
     for scale in (2.0, 0.01):
@@ -439,10 +451,10 @@ def test_quadruped_peak_stress_is_defined_and_scales_isometrically(animal):
 
 def labelled_real_mesh(path):
     """A real mesh of shared/meshes, prepared and labelled automatically."""
-    segmentation = pytest.importorskip("allorules.segmentation")
-    preparation = pytest.importorskip("allorules.preparation")
-    prepared = preparation.prepare_mesh(path)
-    return segmentation.label_quadruped(Body(prepared.vertices, prepared.faces))
+    from allorules.mesh.repair import prepare_mesh
+    from allorules.segment.labeller import label_quadruped
+    prepared = prepare_mesh(path)
+    return label_quadruped(Body(prepared.vertices, prepared.faces))
 
 
 @pytest.mark.slow
@@ -472,7 +484,7 @@ MEASURED_REGIONS = ("neck", "chest", "abdomen", "forelimbs", "hindlimbs", "tail"
 def _every_measure(body):
     """Every public measure of a body, with the power of the scale factor it carries."""
     values = {"body_mass": (body_mass(body), 3), "peak_stress": (peak_stress(body), 1),
-              "chest_girth": (measures.chest_girth(body), 1)}
+              "chest_girth": (chest_girth(body), 1)}
     for region in body.region_names:
         values[f"region_mass:{region}"] = (region_mass(body, region), 3)
     for region in MEASURED_REGIONS:
@@ -483,7 +495,7 @@ def _every_measure(body):
 
 @pytest.fixture(scope="module")
 def small_horse():
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     return quadruped.generate_quadruped("horse", vertices=2000).body()
 
 
@@ -503,14 +515,14 @@ def test_every_measure_of_the_horse_ignores_place_and_orientation(small_horse, s
 def test_neck_length_of_a_coarse_horse_ignores_a_translation():
     # at 1000 vertices the neck's head-side opening holds more than 1/80 of its area, so an area
     # quantile level fell exactly on the harmonic field's value there (measured 0.663 vs 0.610)
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     body = quadruped.generate_quadruped("horse", vertices=1000).body()
     moved = body.with_vertices(body.vertices + np.array([5.0, 0.0, 0.0]))
     assert region_length(moved, "neck") == pytest.approx(region_length(body, "neck"), rel=1e-9)
 
 
 def _carried_measures(reference, vertices):
-    return _every_measure(measures.carry_fields(reference, reference.with_vertices(vertices)))
+    return _every_measure(carry_fields(reference, reference.with_vertices(vertices)))
 
 
 def test_carried_measures_of_the_unmoved_body_are_its_own(small_horse):
@@ -520,8 +532,8 @@ def test_carried_measures_of_the_unmoved_body_are_its_own(small_horse):
     for name, (value, _) in fresh.items():
         assert carried[name][0] == pytest.approx(value, rel=1e-12), name
     # the carried body re-measures the reference's loops: no new skeleton is extracted
-    trial = measures.carry_fields(reference, reference.with_vertices(reference.vertices * 1.5))
-    assert "measures.carried.skeleton:neck" in trial.cache
+    trial = carry_fields(reference, reference.with_vertices(reference.vertices * 1.5))
+    assert "neck" in measured(trial).carried.skeletons
     assert region_length(trial, "neck") == pytest.approx(1.5 * fresh["region_length:neck"][0], rel=1e-12)
 
 
@@ -548,7 +560,7 @@ def test_carried_measures_change_smoothly_with_the_vertices(small_horse):
 def test_posture_change_measures_a_leaning_leg():
     from scipy.spatial.transform import Rotation
 
-    from allorules.measures import posture_change
+    from allorules.measure.limbs import posture_change
 
     body = legs_body()
     cut = leg_cut(body)
@@ -570,7 +582,7 @@ def test_posture_change_measures_a_leaning_leg():
 
 
 def test_posture_change_measures_a_bowing_leg():
-    from allorules.measures import limb_bend, limb_sections, posture_change
+    from allorules.measure.limbs import limb_bend, limb_sections, posture_change
 
     body = legs_body()
     assert [limb_bend(limb) for limb in limb_sections(body, "forelimbs")] == pytest.approx([0.0, 0.0], abs=1e-9)
@@ -591,8 +603,8 @@ def test_posture_change_measures_a_bowing_leg():
 
 
 def test_a_run_that_bows_a_leg_says_so():
-    from allorules.biology_scaling import posture_warnings
-    from allorules.measures import posture_change
+    from allorules.measure.limbs import posture_change
+    from allorules.runs.ruleset_run import posture_warnings
 
     body = legs_body()
     for amplitude, warned in ((0.1, False), (0.3, True)):      # bows of 3 % and 10 % of the leg
@@ -618,7 +630,7 @@ def _sheared(body, amount):
 
 
 def test_end_point_reaches_as_far_as_the_end_along_the_section_axis():
-    from allorules.sections import Loop, end_point
+    from allorules.measure.sections import Loop, end_point
 
     angles = np.linspace(0, 2 * np.pi, 32, endpoint=False)
     ring = np.column_stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)])
@@ -639,7 +651,7 @@ def _open_sole(quadruped, region="forelimbs"):
     hoof (the holes of a mesh are not where a leg joins the body)."""
     body = quadruped.body()
     up, forward = np.asarray(body.frame.up), np.asarray(body.frame.forward)
-    leg = measures.region_parts(body, region)[0]
+    leg = region_parts(body, region)[0]
     lowest = leg.vertex_index[np.argmin(leg.vertices @ up)]
     radius = quadruped.truth.leg_radius[region]
     centre = body.vertices[lowest] + 0.5 * radius * forward + 0.3 * radius * up
@@ -650,16 +662,16 @@ def _open_sole(quadruped, region="forelimbs"):
 
 
 def test_a_hole_in_a_foot_is_capped_and_the_leg_still_ends_at_its_toe():
-    quadruped = pytest.importorskip("allorules.quadruped").generate_quadruped("horse", vertices=2000)
+    quadruped = generate_quadruped("horse", vertices=2000)
     closed = quadruped.body()
     holed = _open_sole(quadruped)
-    parts = measures.region_parts(holed, "forelimbs")
+    parts = region_parts(holed, "forelimbs")
     assert [part.caps is not None for part in parts].count(True) == 1    # the holed leg, not its neighbour
     capped_part = next(part for part in parts if part.caps is not None)
     assert capped_part.caps.loop_count == 1 and len(boundary_loops(*capped_part.closed())) == 1   # the junction
     # the holed leg is measured as the closed one (the skeleton used to end at the hole: −2.4 %)
     assert region_length(holed, "forelimbs") == pytest.approx(region_length(closed, "forelimbs"), rel=0.005)
-    assert all(part_skeleton.kinds.count("tip") == 1 for part_skeleton in measures.region_skeleton(holed, "forelimbs"))
+    assert all(part_skeleton.kinds.count("tip") == 1 for part_skeleton in region_skeleton(holed, "forelimbs"))
 
 
 def test_a_region_without_any_cut_keeps_its_holes_as_its_ends():
@@ -668,14 +680,14 @@ def test_a_region_without_any_cut_keeps_its_holes_as_its_ends():
     z = np.linspace(-1.0, 1.0, 9)
     vertices, faces = revolution(z, np.full(len(z), 2.0), around=32)
     body = Body(vertices, faces, np.zeros(len(vertices), dtype=int), ("neck",))
-    assert measures.region_parts(body, "neck")[0].caps is None
+    assert region_parts(body, "neck")[0].caps is None
 
 
 @pytest.mark.slow
 def test_limb_length_of_the_coarse_elephant_follows_a_small_shear_without_jumps():
     # the 2000-vertex elephant's forelimb length used to jump by 0.8 % between two shears 0.0025
     # apart (isocontours wandering across the wide sole); the shear itself changes it by < 0.1 %
-    quadruped = pytest.importorskip("allorules.quadruped").generate_quadruped("elephant", vertices=2000)
+    quadruped = generate_quadruped("elephant", vertices=2000)
     body = quadruped.body()
     amounts = np.arange(0.20, 0.2301, 0.0025)
     lengths = np.array([region_length(_sheared(body, amount), "forelimbs") for amount in amounts])
@@ -692,11 +704,11 @@ def test_real_horse_foreleg_length_follows_a_small_shear_without_jumps(shared_me
     # centroid: −8.3 %. A shear of 0.01 changes no length by more than about 1 %.
     body = labelled_real_mesh(shared_meshes / "horse.obj")
     before, after = _sheared(body, 0.16), _sheared(body, 0.17)
-    legs_before = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(before, "forelimbs")]
-    legs_after = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(after, "forelimbs")]
+    legs_before = [part_skeleton.diameter for part_skeleton in region_skeleton(before, "forelimbs")]
+    legs_after = [part_skeleton.diameter for part_skeleton in region_skeleton(after, "forelimbs")]
     assert np.allclose(legs_after, legs_before, rtol=0.01)
     assert region_length(after, "forelimbs") == pytest.approx(region_length(before, "forelimbs"), rel=0.01)
-    assert sum(part.caps is not None for part in measures.region_parts(body, "forelimbs")) == 1
+    assert sum(part.caps is not None for part in region_parts(body, "forelimbs")) == 1
 
 
 @pytest.mark.shared_meshes
@@ -704,17 +716,17 @@ def test_real_camel_forelegs_touching_at_the_knees_are_measured_as_two_legs(shar
     # the mesh joins the camel's forelegs at the knees and at the top, so the labels make one
     # piece with two feet: it used to be measured as one 'leg' of 92.9 (hindlegs: 52.2)
     body = labelled_real_mesh(shared_meshes / "camel.obj")
-    legs = measures.region_parts(body, "forelimbs")
+    legs = region_parts(body, "forelimbs")
     assert len(legs) == 2
     assert legs[1].area == pytest.approx(legs[0].area, rel=0.1)
     feet = [leg.vertices[np.argmin(leg.vertices @ body.frame.up)] for leg in legs]
     lateral = np.cross(body.frame.up, body.frame.forward)
     assert abs((feet[0] - feet[1]) @ lateral) > 5.0          # one foot each side (the feet are ~10 apart)
-    lengths = [part_skeleton.diameter for part_skeleton in measures.region_skeleton(body, "forelimbs")]
+    lengths = [part_skeleton.diameter for part_skeleton in region_skeleton(body, "forelimbs")]
     assert lengths[1] == pytest.approx(lengths[0], rel=0.05)
     assert 0.7 < region_length(body, "forelimbs") / region_length(body, "hindlimbs") < 1.1
     # the hindlegs, two pieces already, are not split again
-    assert len(measures.region_parts(body, "hindlimbs")) == 2
+    assert len(region_parts(body, "hindlimbs")) == 2
 
 
 def arch(leg=6.0, radius=1.0, bend=3.0):
@@ -735,7 +747,7 @@ def test_a_paired_region_in_one_piece_with_two_feet_is_split_into_its_legs():
     vertices, faces = arch()
     top = (vertices[:, 2] > 3.5) & (np.abs(vertices[:, 0]) < 0.8)
     body = Body(vertices, faces, np.where(top, 1, 0), ("forelimbs", "chest"))
-    legs = measures.region_parts(body, "forelimbs")
+    legs = region_parts(body, "forelimbs")
     assert len(legs) == 2
     assert legs[1].area == pytest.approx(legs[0].area, rel=0.02)
     assert {np.sign(np.median(leg.vertices[:, 0])) for leg in legs} == {-1.0, 1.0}   # one leg each side
@@ -744,7 +756,7 @@ def test_a_paired_region_in_one_piece_with_two_feet_is_split_into_its_legs():
     assert region_length(body, "forelimbs") == pytest.approx(centre_line, rel=0.05)
     # one leg alone is not split: no second foot
     one_leg = Body(vertices, faces, np.where(top | (vertices[:, 0] > 0), 1, 0), ("forelimbs", "chest"))
-    assert len(measures.region_parts(one_leg, "forelimbs")) == 1
+    assert len(region_parts(one_leg, "forelimbs")) == 1
 
 
 # ---------------------------------------------------------------------------------------------
@@ -755,9 +767,9 @@ def test_heart_girth_is_measured_around_the_torso_when_the_chest_labels_are_ragg
     """Where the chest/abdomen labels zigzag (large faces of a low-poly mesh), no plane section of
     the chest alone closes behind the forelimbs (before: a MeasurementError); the same levels are
     then cut around the whole torso, which gives the clean chest's girth."""
-    from allorules.measures import _forelimb_limit, chest_girth, torso_axis
+    from allorules.measure.girth import _forelimb_limit, chest_girth, torso_axis
 
-    body = pytest.importorskip("allorules.quadruped").generate_quadruped("horse", vertices=2000).body()
+    body = generate_quadruped("horse", vertices=2000).body()
     chest, abdomen = body.region_names.index("chest"), body.region_names.index("abdomen")
     axis = torso_axis(body)
     along = body.vertices @ axis
@@ -769,15 +781,15 @@ def test_heart_girth_is_measured_around_the_torso_when_the_chest_labels_are_ragg
     labels[band] = np.where(np.random.default_rng(0).random(band.sum()) < 0.5, chest, abdomen)
     ragged = Body(body.vertices, body.faces, labels, body.region_names, body.frame)
     assert chest_girth(ragged) == pytest.approx(chest_girth(body), rel=1e-3)
-    assert ragged.cache["measures.chest-candidates"][1]                  # cut around the torso
-    assert not body.cache["measures.chest-candidates"][1]                # the clean chest: its own sections
+    assert measured(ragged).chest_candidates[1]                  # cut around the torso
+    assert not measured(body).chest_candidates[1]                # the clean chest: its own sections
 
 
 @pytest.mark.shared_meshes
 def test_low_poly_dog_heart_girth_is_measured(shared_meshes):
     """The shared low-poly dog's chest/abdomen boundary crosses faces as long as a leg is thick:
     no section of its chest alone closes behind the forelimbs."""
-    from allorules.measures import chest_girth, torso_axis
+    from allorules.measure.girth import chest_girth, torso_axis
 
     body = labelled_real_mesh(shared_meshes / "dog-lowpoly.obj")
     girth = chest_girth(body)

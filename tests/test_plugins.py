@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import allorules
 from allorules.body import Body, Frame
 from allorules.cli import main
 from allorules.errors import PluginError
-from allorules.plugins import registry_for
-from allorules.rules import list_rulesets, load_ruleset
-from allorules.specs import ConstraintContext, ConstraintSpec, ParameterSpec
+from allorules.plugins import ConstraintContext, ConstraintSpec, ParameterSpec
+from allorules.plugins.registry import registry_for
+from allorules.rules.find import list_rulesets
+from allorules.rules.resolve import load_ruleset
 
 REPO = Path(__file__).resolve().parents[1]
 PLUGINS = REPO / "plugins"
@@ -30,8 +30,8 @@ def write(folder: Path, name: str, text: str) -> Path:
 
 
 GOOD_PLUGIN = """
-from allorules.hookspecs import hookimpl
-from allorules.specs import MeasureSpec
+from allorules.plugins import hookimpl
+from allorules.plugins import MeasureSpec
 
 def ear_length(body, region):
     return 2.0
@@ -69,36 +69,20 @@ def test_builtin_plugin_registers_through_the_hooks():
     assert [len(items) for items in registry.hook.allorules_measures()] == [4]
 
 
-def test_builtin_measure_wrappers_call_the_measures_module(monkeypatch):
+def test_builtin_measure_wrappers_call_the_measure_modules(monkeypatch):
     calls = []
 
-    class FakeMeasures:
-        @staticmethod
-        def body_mass(body):
-            calls.append(("body_mass",))
-            return 8.0
+    def fake(name, value):
+        def compute(*args):
+            calls.append((name,) + tuple(arg for arg in args[1:]))
+            return value
+        return compute
 
-        @staticmethod
-        def region_mass(body, region):
-            calls.append(("region_mass", region))
-            return 2.0
-
-        @staticmethod
-        def region_length(body, region):
-            calls.append(("region_length", region))
-            return 3.0
-
-        @staticmethod
-        def region_girth(body, region):
-            calls.append(("region_girth", region))
-            return 5.0
-
-        @staticmethod
-        def peak_stress(body):
-            calls.append(("peak_stress",))
-            return 7.0
-
-    monkeypatch.setattr(allorules, "measures", FakeMeasures, raising=False)
+    monkeypatch.setattr("allorules.measure.mass.body_mass", fake("body_mass", 8.0))
+    monkeypatch.setattr("allorules.measure.mass.region_mass", fake("region_mass", 2.0))
+    monkeypatch.setattr("allorules.measure.length.region_length", fake("region_length", 3.0))
+    monkeypatch.setattr("allorules.measure.girth.region_girth", fake("region_girth", 5.0))
+    monkeypatch.setattr("allorules.measure.stress.peak_stress", fake("peak_stress", 7.0))
     measures = registry_for([], entry_points=False).measures()
     body = box()
     assert measures["mass"].compute(body, None) == 8.0
@@ -112,20 +96,15 @@ def test_builtin_measure_wrappers_call_the_measures_module(monkeypatch):
         pytest.approx([1, 1 / 3, 1 / 3, 1 / 3])
 
 
-def test_builtin_segmenter_wrappers_call_the_segmentation_module(monkeypatch):
-    class FakeSegmentation:
-        @staticmethod
-        def label_quadruped(body, **options):
-            return ("labelled", options)
-
-        @staticmethod
-        def apply_merge_file(body, patches, path):
-            return ("merged", patches, path)
-
-    monkeypatch.setattr(allorules, "segmentation", FakeSegmentation, raising=False)
+def test_builtin_segmenter_wrappers_call_the_segment_modules(monkeypatch):
+    monkeypatch.setattr("allorules.segment.labeller.label_quadruped", lambda body, **options: ("labelled", options))
+    monkeypatch.setattr("allorules.segment.patches.spectral_patches", lambda vertices, faces, count, seed: ("patches", count, seed))
+    monkeypatch.setattr("allorules.segment.labels_io.apply_merge_file", lambda body, patches, path: ("merged", patches, path))
     segmenters = registry_for([], entry_points=False).segmenters()
-    assert segmenters["auto-quadruped"].segment(box(), up=(0, 0, 1)) == ("labelled", {"up": (0, 0, 1)})
-    assert segmenters["merge-file"].segment(box(), patches=[1], path="m.yaml") == ("merged", [1], "m.yaml")
+    assert segmenters["auto-quadruped"].segment(box(), up=(0, 0, 1)) == ("labelled", {"up": (0, 0, 1), "forward": None})
+    assert segmenters["merge-file"].segment(box(), path="m.yaml", patches=12) == ("merged", ("patches", 12, 0), "m.yaml")
+    assert set(segmenters["merge-file"].parameter_specs()) == {"path", "patches", "seed"}
+    assert segmenters["merge-file"].parameter_specs()["path"].required
 
 
 def stress_context(initial_stress, candidate_stress, mass_ratio, initial=None, candidate=None):
@@ -182,7 +161,7 @@ def test_failing_plugins_are_reported_by_name_and_the_rest_work(tmp_path, caplog
     broken = write(tmp_path, "broken.py", "import not_a_module_anywhere\n")
     exits = write(tmp_path, "exits.py", "raise SystemExit(3)\n")
     raising = write(tmp_path, "raising.py", """
-        from allorules.hookspecs import hookimpl
+        from allorules.plugins import hookimpl
         @hookimpl
         def allorules_measures():
             raise RuntimeError("measure table missing")
@@ -191,7 +170,7 @@ def test_failing_plugins_are_reported_by_name_and_the_rest_work(tmp_path, caplog
             return []
         """)
     wrong = write(tmp_path, "wrong.py", """
-        from allorules.hookspecs import hookimpl
+        from allorules.plugins import hookimpl
         @hookimpl
         def allorules_measures():
             return ["not a spec"]
@@ -200,15 +179,15 @@ def test_failing_plugins_are_reported_by_name_and_the_rest_work(tmp_path, caplog
             return 5
         """)
     clash = write(tmp_path, "clash.py", """
-        from allorules.hookspecs import hookimpl
-        from allorules.specs import MeasureSpec
+        from allorules.plugins import hookimpl
+        from allorules.plugins import MeasureSpec
         @hookimpl
         def allorules_measures():
             return [MeasureSpec("mass", "mass", 1.0, lambda b, r: 1.0, "fake mass"),
                     MeasureSpec("", "mass", 1.0, lambda b, r: 1.0, "nameless")]
         """)
     badhook = write(tmp_path, "badhook.py", """
-        from allorules.hookspecs import hookimpl
+        from allorules.plugins import hookimpl
         @hookimpl
         def allorules_measures(extra_argument):
             return []
@@ -245,7 +224,7 @@ def test_ruleset_path_hook_makes_rulesets_nameable(tmp_path):
         """)
     plugin = write(tmp_path, "ponies.py", f"""
         from pathlib import Path
-        from allorules.hookspecs import hookimpl
+        from allorules.plugins import hookimpl
         @hookimpl
         def allorules_ruleset_paths():
             return [Path({str(tmp_path / 'sets')!r})]
@@ -390,9 +369,11 @@ def test_flight_wing_loading_residual_under_uniform_scaling():
 
 def test_aquatic_locomotion_residuals():
     import trimesh
-    from allorules_plugin_allorules_swimming import fineness_ratio
 
     spec = load_example("allorules-swimming").constraint("aquatic-locomotion")
+    from allorules_plugin_allorules_swimming import (
+        fineness_ratio,  # the module load_example loaded
+    )
     tube = trimesh.creation.cylinder(radius=0.5, height=20.0, sections=128)   # along z, 2R = 1
     body = Body(tube.vertices, tube.faces)
     assert fineness_ratio(body) == pytest.approx(20.0, rel=0.03)           # caps shift it a little
@@ -437,3 +418,33 @@ def test_example_rulesets_load_with_their_plugins(ruleset, constraint):
         assert loaded.rule("skin-area").measure == "surface-area"
     if "otter" in ruleset:
         assert [use.name for use in loaded.constraints] == ["aquatic-locomotion"]
+
+
+def test_painted_regions_segmenter_reads_the_regions_an_artist_painted(tmp_path):
+    """The worked example of a segmenter plugin: the generator's regions painted as vertex colours
+    come back as the body's regions; a painted mesh that is not this body is refused."""
+    import trimesh
+
+    from allorules.errors import SegmentationError
+    from allorules.mesh.quadruped import generate_quadruped
+
+    spec = load_example("allorules-painted-regions").segmenter("painted-regions")
+    module = sys.modules[spec.segment.__module__]
+    horse = generate_quadruped("horse", 1500)
+    colours = np.array([[int(module.DEFAULT_COLORS[horse.region_names[label]][k:k + 2], 16) for k in (1, 3, 5)] + [255]
+                        for label in horse.labels], dtype=np.uint8)
+    painted = trimesh.Trimesh(horse.vertices, horse.faces, vertex_colors=colours, process=False)
+    painted.export(tmp_path / "painted.ply")
+    body = horse.body()
+    turned = Body(body.vertices, body.faces)
+    labelled = spec.segment(turned, path=tmp_path / "painted.ply")
+    names = np.asarray(labelled.region_names, dtype=object)[labelled.labels]
+    truth = np.asarray(horse.region_names, dtype=object)[horse.labels]
+    assert np.all(names == truth)
+    assert labelled.labelling.confidence["painted"] == 1.0
+    trimesh.creation.icosphere(3, radius=0.1).export(tmp_path / "other.ply")
+    with pytest.raises(SegmentationError, match="has no vertex colours|does not lie on this mesh"):
+        spec.segment(turned, path=tmp_path / "other.ply")
+    ruleset = load_ruleset(PLUGINS / "allorules-painted-regions" / "painted.yaml", registry_for([], entry_points=False))
+    assert ruleset.segmenter.name == "painted-regions"
+    assert ruleset.segmenter.options["path"] == (PLUGINS / "allorules-painted-regions" / "horse-painted.ply").resolve()

@@ -8,13 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from allorules.measures import carry_fields, limb_sections, posture_change, region_length
-from allorules.posture import FootContact, restore_limb_axes, restore_limb_lines
+from allorules.measure.length import region_length
+from allorules.measure.limbs import limb_sections, posture_change
+from allorules.measure.parts import carry_fields
+from allorules.mesh.quadruped import generate_quadruped
+from allorules.solve.posture import FootContact, restore_limb_axes, restore_limb_lines
 
 
 @pytest.fixture(scope="module")
 def animal():
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     return generate_quadruped("horse", vertices=1000)
 
@@ -131,7 +134,7 @@ def test_foot_contact_weights_blend_the_legs_shifts(animal):
 def test_heights_are_taken_along_the_ground_normal(animal):
     """With a frame (the labeller's: the normal of the plane the feet stand on), 'down' is −up,
     not the legs' mean direction, which slanting hind legs tilt."""
-    from allorules.measures import stance_down
+    from allorules.measure.limbs import stance_down
 
     body = animal.body()
     assert body.frame is not None
@@ -147,13 +150,13 @@ def test_automatically_labelled_animal_keeps_its_feet_down_through_a_run():
     """Turning a slanted leg upright after a step moves its foot; the feet are put back after
     the turn too. On the automatically labelled generated horse the feet ended 7–8 % of a leg
     apart at R = 2 without that second pass, 1.3 % with it."""
-    from allorules.biology_scaling import scale_with_ruleset
     from allorules.body import Body
-    from allorules.plugins import registry_for
-    from allorules.rules import load_ruleset
-    from allorules.segmentation import label_quadruped
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs.ruleset_run import scale_with_ruleset
+    from allorules.segment.labeller import label_quadruped
 
-    generated = pytest.importorskip("allorules.quadruped").generate_quadruped("horse", vertices=3000)
+    generated = generate_quadruped("horse", vertices=3000)
     body = label_quadruped(Body(np.asarray(generated.vertices, dtype=float), np.asarray(generated.faces)))
     registry = registry_for(None)
     result = scale_with_ruleset(body, load_ruleset("quadruped", registry), 2.0, registry=registry, modes=300,
@@ -165,7 +168,7 @@ def test_automatically_labelled_animal_keeps_its_feet_down_through_a_run():
 def test_foot_contact_weights_survive_a_zero_length_edge_and_a_stray_piece():
     """Users' meshes have degenerate faces and stray parts: the weights stay finite, sum to 1
     where a leg is reached, and a piece that touches no leg does not move."""
-    from allorules.posture import _conductances, _harmonic_weights
+    from allorules.solve.posture import _conductances, _harmonic_weights
 
     vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0],      # 1 and 2 coincide
                          [5, 5, 0], [6, 5, 0], [5, 6, 0]], dtype=float)              # a stray triangle

@@ -6,7 +6,10 @@ import pytest
 import trimesh
 
 from allorules.errors import MeshError
-from allorules.preparation import cap_holes, count_boundary_loops, load_mesh, prepare_mesh, signed_volume
+from allorules.mesh.geometry import enclosed_volume
+from allorules.mesh.load import load_mesh
+from allorules.mesh.repair import prepare_mesh
+from allorules.mesh.topology import cap_holes, count_boundary_loops
 
 
 def sphere(subdivisions: int = 3, radius: float = 1.0) -> trimesh.Trimesh:
@@ -40,14 +43,14 @@ def test_flipped_faces_are_reoriented_outward():
     assert any("flipped" in repair for repair in prepared.repairs)
     repaired = trimesh.Trimesh(prepared.vertices, prepared.faces, process=False)
     assert repaired.is_winding_consistent
-    assert signed_volume(prepared.vertices, prepared.faces) > 0
+    assert enclosed_volume(prepared.vertices, prepared.faces) > 0
 
 
 def test_inside_out_mesh_is_turned_outward():
     mesh = sphere()
     prepared = prepare_mesh(trimesh.Trimesh(mesh.vertices, mesh.faces[:, ::-1], process=False))
     assert any("outward" in repair for repair in prepared.repairs)
-    assert signed_volume(prepared.vertices, prepared.faces) > 0
+    assert enclosed_volume(prepared.vertices, prepared.faces) > 0
 
 
 def test_holes_are_reported_and_capped_for_volume_only():
@@ -61,7 +64,7 @@ def test_holes_are_reported_and_capped_for_volume_only():
     assert count_boundary_loops(prepared.faces) == 2          # the output keeps its holes
     capped_vertices, capped_faces = cap_holes(prepared.vertices, prepared.faces)
     assert count_boundary_loops(capped_faces) == 0
-    assert signed_volume(capped_vertices, capped_faces) == pytest.approx(4 / 3 * np.pi, rel=0.02)
+    assert enclosed_volume(capped_vertices, capped_faces) == pytest.approx(4 / 3 * np.pi, rel=0.02)
 
 
 def test_stray_parts_are_carried_along_with_the_body():
@@ -148,5 +151,5 @@ def test_preparation_is_independent_of_units():
 def test_real_meshes_prepare(shared_meshes, name):
     prepared = prepare_mesh(shared_meshes / f"{name}.obj")
     capped = cap_holes(prepared.vertices, prepared.faces)
-    assert signed_volume(*capped) > 0
+    assert enclosed_volume(*capped) > 0
     assert np.all(np.isfinite(prepared.vertices))

@@ -4,7 +4,13 @@ from __future__ import annotations
 import io
 import logging
 
-from allorules.progress import RunProgress, Steps, TerminalRunProgress, count_bar, run_progress
+from allorules.runs.progress import (
+    RunProgress,
+    Steps,
+    TerminalRunProgress,
+    count_bar,
+    run_progress,
+)
 
 
 class Terminal(io.StringIO):

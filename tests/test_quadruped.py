@@ -14,8 +14,17 @@ import trimesh
 from allorules.body import UNLABELLED, Body
 from allorules.cli import main
 from allorules.errors import AllorulesError
-from allorules.quadruped import (LIMB_REGIONS, PRESETS, REGION_NAMES, HalfSpace, QuadrupedParameters,
-                                 _closed_surface_problem, _layout, clipped_volume, generate_quadruped)
+from allorules.mesh.quadruped import (
+    LIMB_REGIONS,
+    PRESETS,
+    REGION_NAMES,
+    HalfSpace,
+    QuadrupedParameters,
+    _closed_surface_problem,
+    _layout,
+    clipped_volume,
+    generate_quadruped,
+)
 
 
 @functools.lru_cache(maxsize=None)

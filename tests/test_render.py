@@ -9,8 +9,9 @@ import trimesh
 from matplotlib.image import imread
 
 from allorules.body import Frame
-from allorules.render import (
+from allorules.output.render import (
     REGION_PALETTE,
+    _visible,
     camera_for,
     make_shot,
     plot_spectrum,
@@ -22,7 +23,6 @@ from allorules.render import (
     render_views,
     resolve_frame,
 )
-from allorules.render import _visible
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -326,7 +326,7 @@ def test_plot_spectrum(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_generated_horse_renders_with_regions(tmp_path: Path) -> None:
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     horse = quadruped.generate_quadruped("horse", vertices=3000)
     body = horse.body()
     path = render_views(horse.vertices, horse.faces, path=tmp_path / "horse.png", views=("side", "three-quarter"),
@@ -357,7 +357,7 @@ def test_html_report_is_self_contained(tmp_path: Path) -> None:
     import base64
     import re
 
-    from allorules.report_html import Table, write_html_report
+    from allorules.output.html import Table, write_html_report
 
     box = _long_box()
     picture = render_views(box.vertices, box.faces, path=tmp_path / "side_view.png", size=(200, 150))
@@ -385,7 +385,7 @@ def test_html_report_is_self_contained(tmp_path: Path) -> None:
 
 
 def test_html_report_rejects_unknown_table_shapes(tmp_path: Path) -> None:
-    from allorules.report_html import write_html_report
+    from allorules.output.html import write_html_report
 
     with pytest.raises(TypeError, match="table 1"):
         write_html_report(tmp_path / "r.html", title="t", summary={}, tables=[42])

@@ -10,19 +10,13 @@ import pytest
 import yaml
 
 from allorules.cli import main
-from allorules.errors import RulesetError
-from allorules.plugins import registry_for
-from allorules.rules import (
-    Rule,
-    RulesetProblems,
-    check_ruleset,
-    list_rulesets,
-    load_ruleset,
-    override_exponents,
-    parse_rule_overrides,
-    ruleset_schema,
-    ruleset_to_dict,
-)
+from allorules.errors import RulesetError, RulesetProblems
+from allorules.plugins.registry import registry_for
+from allorules.rules.find import list_rulesets
+from allorules.rules.model import Rule, ruleset_to_dict
+from allorules.rules.overrides import override_exponents, parse_rule_overrides
+from allorules.rules.resolve import check_ruleset, load_ruleset
+from allorules.rules.schema import ruleset_schema
 
 BUILTINS = ("quadruped", "intraspecies", "neck-override", "isometric")
 REPO = Path(__file__).resolve().parents[1]

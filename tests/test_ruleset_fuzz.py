@@ -14,8 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from allorules.errors import RulesetError
-from allorules.plugins import registry_for
-from allorules.rules import Ruleset, load_ruleset
+from allorules.plugins.registry import registry_for
+from allorules.rules.model import Ruleset
+from allorules.rules.resolve import load_ruleset
 
 REGISTRY = registry_for([], entry_points=False)
 FOLDER = Path(tempfile.mkdtemp(prefix="allorules-fuzz-"))
@@ -119,7 +120,7 @@ def test_arbitrary_text_never_ends_in_a_traceback(text):
 @FUZZ
 @given(st.sampled_from(["quadruped", "neck-override", "isometric", "intraspecies"]), st.data())
 def test_mutated_builtin_rulesets_never_end_in_a_traceback(name, data):
-    from allorules.rules import builtin_ruleset_folder
+    from allorules.rules.find import builtin_ruleset_folder
 
     lines = (builtin_ruleset_folder() / f"{name}.yaml").read_text(encoding="utf-8").splitlines()
     for _ in range(data.draw(st.integers(1, 3))):

@@ -6,9 +6,10 @@ import pytest
 import scipy.linalg
 import trimesh
 
-from allorules.basis import HarmonicBasis, compute_basis, transform
-from allorules.laplacian import cotangent_laplacian, face_areas, lumped_mass
-from allorules.scaling import (
+from allorules.mesh.geometry import face_areas
+from allorules.spectral.basis import HarmonicBasis, compute_basis, transform
+from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.power_laws import (
     apply_to_mesh,
     arithmetic_region_scaling,
     dimensionless,

@@ -10,9 +10,19 @@ import trimesh
 
 from allorules.body import Body
 from allorules.errors import RulesetError, SegmentationError
-from allorules.laplacian import lumped_mass
-from allorules.patches import connected_parts, vertex_graph
-from allorules import segmentation
+from allorules.mesh.topology import vertex_components, vertex_graph
+from allorules.segment.labeller import label_quadruped
+from allorules.segment.labels_io import (
+    apply_merge_file,
+    face_labels_from_vertices,
+    read_labels,
+    read_seg,
+    write_labels,
+    write_seg,
+)
+from allorules.segment.patches import spectral_patches
+from allorules.segment.regions import QUADRUPED_REGIONS, fold_regions
+from allorules.spectral.laplacian import lumped_mass
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -22,14 +32,14 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 @pytest.fixture(scope="session")
 def generated():
     """Generated quadrupeds with their truth, ~2000 vertices (the generator is the slow part)."""
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     return {preset: quadruped.generate_quadruped(preset, vertices=2000, seed=0)
             for preset in ("horse", "giraffe", "dog", "elephant")}
 
 
 def truth_body(animal) -> Body:
     """The generator's truth with the tail folded into the abdomen, as the labeller does."""
-    return segmentation.map_regions(animal.body())
+    return fold_regions(animal.body())
 
 
 def area_agreement(labels_a, labels_b, vertices, faces) -> float:
@@ -63,23 +73,23 @@ def capsule():
 
 def test_patches_are_connected_numbered_and_deterministic(capsule):
     vertices, faces = capsule
-    patches = segmentation.spectral_patches(vertices, faces, 8, seed=3)
+    patches = spectral_patches(vertices, faces, 8, seed=3)
     assert sorted(np.unique(patches)) == list(range(8))
     graph = vertex_graph(vertices, faces)
     for patch in range(8):
-        parts = connected_parts(graph, patches == patch)
+        parts = vertex_components(graph, patches == patch)
         assert parts.max() == 0, f"patch {patch} is in {parts.max() + 1} pieces"
     # Numbered by lowest vertex index.
     firsts = [np.flatnonzero(patches == patch)[0] for patch in range(8)]
     assert firsts == sorted(firsts)
-    again = segmentation.spectral_patches(vertices, faces, 8, seed=3)
+    again = spectral_patches(vertices, faces, 8, seed=3)
     np.testing.assert_array_equal(patches, again)
 
 
 def test_patches_on_a_capsule_cut_across_its_length(capsule):
     """The low harmonics of a long capsule run along it: patches are bands along the axis."""
     vertices, faces = capsule
-    patches = segmentation.spectral_patches(vertices, faces, 4, seed=0)
+    patches = spectral_patches(vertices, faces, 4, seed=0)
     axis = np.argmax(np.ptp(vertices, axis=0))
     extents = sorted((vertices[patches == p, axis].min(), vertices[patches == p, axis].max()) for p in range(4))
     span = np.ptp(vertices[:, axis])
@@ -90,7 +100,7 @@ def test_patches_on_a_capsule_cut_across_its_length(capsule):
 def test_too_many_patches_is_a_clear_error(sphere):
     vertices, faces = sphere
     with pytest.raises(SegmentationError, match="too many"):
-        segmentation.spectral_patches(vertices, faces, 500)
+        spectral_patches(vertices, faces, 500)
 
 
 # ---------------------------------------------------------------- files
@@ -101,20 +111,20 @@ def test_labels_round_trip_and_validation(tmp_path, sphere):
     labels[:5] = -1
     body = Body(vertices, faces, labels, ("left", "right"))
     path = tmp_path / "labels.json"
-    segmentation.write_labels(path, body)
+    write_labels(path, body)
     document = json.loads(path.read_text())
     assert document["format"] == "allorules-labels" and document["version"] == 1
-    read = segmentation.read_labels(path, Body(vertices, faces))
+    read = read_labels(path, Body(vertices, faces))
     np.testing.assert_array_equal(read.labels, labels)
     assert read.region_names == ("left", "right")
     document["labels"] = document["labels"][:-1]
     path.write_text(json.dumps(document))
     with pytest.raises(SegmentationError, match="labels but the mesh has"):
-        segmentation.read_labels(path, Body(vertices, faces))
+        read_labels(path, Body(vertices, faces))
     document["labels"] = [7] * len(vertices)
     path.write_text(json.dumps(document))
     with pytest.raises(SegmentationError, match="not a region index"):
-        segmentation.read_labels(path, Body(vertices, faces))
+        read_labels(path, Body(vertices, faces))
 
 
 def test_seg_round_trip_per_face(tmp_path, sphere):
@@ -122,12 +132,12 @@ def test_seg_round_trip_per_face(tmp_path, sphere):
     labels = np.digitize(vertices[:, 2], [-0.3, 0.4]).astype(np.int64)
     body = Body(vertices, faces, labels, ("a", "b", "c"))
     path = tmp_path / "body.seg"
-    segmentation.write_seg(path, body)
+    write_seg(path, body)
     lines = path.read_text().split()
     assert len(lines) == len(faces)  # one integer per face
     face_labels = np.array(lines, dtype=int)
-    np.testing.assert_array_equal(face_labels, segmentation.face_labels_from_vertices(faces, labels))
-    read = segmentation.read_seg(path, Body(vertices, faces), ("a", "b", "c"))
+    np.testing.assert_array_equal(face_labels, face_labels_from_vertices(faces, labels))
+    read = read_seg(path, Body(vertices, faces), ("a", "b", "c"))
     # Majority face→vertex conversion returns every vertex away from the band borders unchanged.
     assert np.mean(read.labels == labels) > 0.9
     border = np.zeros(len(vertices), dtype=bool)
@@ -137,7 +147,7 @@ def test_seg_round_trip_per_face(tmp_path, sphere):
     np.testing.assert_array_equal(read.labels[~border], labels[~border])
     path.write_text("0\n" * (len(faces) - 1))
     with pytest.raises(SegmentationError, match="face labels but the mesh has"):
-        segmentation.read_seg(path, Body(vertices, faces))
+        read_seg(path, Body(vertices, faces))
 
 
 MERGE_OK = """\
@@ -153,7 +163,7 @@ hindlimbs: [6, 7]
 @pytest.fixture
 def patched(capsule):
     vertices, faces = capsule
-    patches = segmentation.spectral_patches(vertices, faces, 8, seed=0)
+    patches = spectral_patches(vertices, faces, 8, seed=0)
     return Body(vertices, faces), patches
 
 
@@ -161,8 +171,8 @@ def test_merge_file_turns_patches_into_regions(tmp_path, patched):
     body, patches = patched
     path = tmp_path / "merge.yaml"
     path.write_text(MERGE_OK)
-    merged = segmentation.apply_merge_file(body, patches, path)
-    assert merged.region_names == segmentation.QUADRUPED_REGIONS
+    merged = apply_merge_file(body, patches, path)
+    assert merged.region_names == QUADRUPED_REGIONS
     np.testing.assert_array_equal(merged.labels[patches == 3], 3)
     np.testing.assert_array_equal(merged.labels[patches == 7], 5)
     assert (merged.labels >= 0).all()
@@ -181,7 +191,7 @@ def test_bad_merge_files_name_file_and_line(tmp_path, patched, text, line, messa
     path = tmp_path / "merge.yaml"
     path.write_text(text)
     with pytest.raises(SegmentationError, match=message) as caught:
-        segmentation.apply_merge_file(body, patches, path)
+        apply_merge_file(body, patches, path)
     assert isinstance(caught.value, RulesetError)
     assert str(caught.value).startswith(str(path))
     if line is not None:
@@ -193,7 +203,7 @@ def test_bad_merge_files_name_file_and_line(tmp_path, patched, text, line, messa
 def test_non_quadrupeds_are_refused_clearly(sphere, capsule):
     for vertices, faces in (sphere, capsule):
         with pytest.raises(SegmentationError, match="quadruped"):
-            segmentation.label_quadruped(Body(vertices, faces))
+            label_quadruped(Body(vertices, faces))
 
 
 @pytest.mark.parametrize("preset", ["horse", "giraffe", "dog", "elephant"])
@@ -205,7 +215,7 @@ def test_labels_agree_with_generator_truth(generated, preset):
 @pytest.mark.parametrize("vertices", [1500, 4000])
 @pytest.mark.parametrize("preset", ["horse", "giraffe", "dog", "elephant"])
 def test_labels_agree_with_generator_truth_at_other_sizes(preset, vertices):
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     check_agreement(quadruped.generate_quadruped(preset, vertices=vertices), preset)
 
 
@@ -221,19 +231,19 @@ def test_labels_agree_with_generator_truth_at_other_sizes(preset, vertices):
 def test_labels_agree_with_generator_truth_on_a_varied_animal(preset):
     """Seed 1 varies every length by up to ±8% (measured 2000 vertices, seeds 1/2/3: giraffe
     0.959/0.960/0.962, dog 0.974/0.984/0.972)."""
-    quadruped = pytest.importorskip("allorules.quadruped")
+    from allorules.mesh import quadruped
     check_agreement(quadruped.generate_quadruped(preset, vertices=2000, seed=1), preset)
 
 
 def check_agreement(animal, preset):
     truth = truth_body(animal)
-    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
-    assert labelled.region_names == segmentation.QUADRUPED_REGIONS
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    assert labelled.region_names == QUADRUPED_REGIONS
     np.testing.assert_allclose(labelled.frame.up, [0, 1, 0], atol=0.05)
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0], atol=0.05)
     agreement = area_agreement(labelled.labels, truth.labels, animal.vertices, animal.faces)
     assert agreement >= 0.95, f"{preset}: {agreement:.3f} of the surface agrees with the truth"
-    limbs = [segmentation.QUADRUPED_REGIONS.index(name) for name in ("forelimbs", "hindlimbs")]
+    limbs = [QUADRUPED_REGIONS.index(name) for name in ("forelimbs", "hindlimbs")]
     for limb in limbs:
         leg_agreement = area_agreement(labelled.labels == limb, truth.labels == limb, animal.vertices, animal.faces)
         assert leg_agreement >= 0.98
@@ -243,17 +253,17 @@ def test_elephant_trunk_is_not_a_foot(generated):
     """The trunk tip hangs low near the head end; the feet are the four that stand on the ground."""
     animal = generated["elephant"]
     truth = truth_body(animal)
-    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
     np.testing.assert_allclose(labelled.frame.up, [0, 1, 0], atol=0.05)
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0], atol=0.05)
-    limbs = np.isin(labelled.labels, [segmentation.QUADRUPED_REGIONS.index(n) for n in ("forelimbs", "hindlimbs")])
+    limbs = np.isin(labelled.labels, [QUADRUPED_REGIONS.index(n) for n in ("forelimbs", "hindlimbs")])
     head = truth.region_mask("head")
     mass = lumped_mass(animal.vertices, animal.faces)
     assert mass[head & limbs].sum() < 0.01 * mass[head].sum()
     # the trunk (in the generator's head) is labelled head, all of it
     assert mass[head & labelled.region_mask("head")].sum() > 0.7 * mass[head].sum()
     for limb in ("forelimbs", "hindlimbs"):
-        index = segmentation.QUADRUPED_REGIONS.index(limb)
+        index = QUADRUPED_REGIONS.index(limb)
         assert area_agreement(labelled.labels == index, truth.labels == index, animal.vertices, animal.faces) >= 0.97
 
 
@@ -261,12 +271,12 @@ def test_elephant_trunk_is_not_a_foot(generated):
 @pytest.mark.parametrize("transform", ["rotated", "mirrored", "tiny", "huge"])
 def test_labels_do_not_depend_on_orientation_mirroring_or_scale(generated, transform, preset):
     animal = generated[preset]
-    reference = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    reference = label_quadruped(Body(animal.vertices, animal.faces))
     matrix = {"rotated": random_rotation(1), "mirrored": np.diag([1.0, 1.0, -1.0]) @ random_rotation(2),
               "tiny": 0.001 * random_rotation(3), "huge": 1000.0 * np.eye(3)}[transform]
     moved = animal.vertices @ matrix.T + np.array([5.0, -3.0, 2.0]) * np.abs(matrix).max()
     faces = animal.faces if np.linalg.det(matrix) > 0 else animal.faces[:, ::-1]
-    labelled = segmentation.label_quadruped(Body(moved, faces))
+    labelled = label_quadruped(Body(moved, faces))
     assert area_agreement(labelled.labels, reference.labels, animal.vertices, animal.faces) >= 0.99
     scale = np.cbrt(abs(np.linalg.det(matrix)))
     np.testing.assert_allclose(labelled.frame.up, matrix @ reference.frame.up / scale, atol=0.02)
@@ -275,14 +285,14 @@ def test_labels_do_not_depend_on_orientation_mirroring_or_scale(generated, trans
 
 def test_up_and_forward_overrides_are_used(generated):
     animal = generated["horse"]
-    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 2, 0], forward=[3, 0, 0])
+    labelled = label_quadruped(Body(animal.vertices, animal.faces), up=[0, 2, 0], forward=[3, 0, 0])
     np.testing.assert_allclose(labelled.frame.up, [0, 1, 0])
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0])
     # Forward given backwards: the labeller follows the user (fore and hind swap).
-    backwards = segmentation.label_quadruped(Body(animal.vertices, animal.faces), up=[0, 1, 0], forward=[-1, 0, 0],
+    backwards = label_quadruped(Body(animal.vertices, animal.faces), up=[0, 1, 0], forward=[-1, 0, 0],
                                              complete=False)
-    fore = segmentation.QUADRUPED_REGIONS.index("forelimbs")
-    hind = segmentation.QUADRUPED_REGIONS.index("hindlimbs")
+    fore = QUADRUPED_REGIONS.index("forelimbs")
+    hind = QUADRUPED_REGIONS.index("hindlimbs")
     np.testing.assert_array_equal(backwards.labels == fore, labelled.labels == hind)
     np.testing.assert_allclose(backwards.frame.forward, [-1, 0, 0])
 
@@ -290,12 +300,13 @@ def test_up_and_forward_overrides_are_used(generated):
 @pytest.mark.parametrize("preset", ["horse", "giraffe", "dog", "elephant"])
 def test_leg_lengths_and_volumes_from_automatic_labels_match_truth(generated, preset):
     """Labeller and generator cut a leg at the same place: its saddle (armpit / groin)."""
-    measures = pytest.importorskip("allorules.measures")
+    from allorules.measure.length import region_length
+    from allorules.measure.mass import region_mass
     animal = generated[preset]
-    labelled = segmentation.label_quadruped(Body(animal.vertices, animal.faces))
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
     for region in ("forelimbs", "hindlimbs"):
-        assert measures.region_mass(labelled, region) == pytest.approx(animal.truth.region_volume[region], rel=0.05)
-        assert measures.region_length(labelled, region) == pytest.approx(animal.truth.leg_length[region], rel=0.05)
+        assert region_mass(labelled, region) == pytest.approx(animal.truth.region_volume[region], rel=0.05)
+        assert region_length(labelled, region) == pytest.approx(animal.truth.leg_length[region], rel=0.05)
 
 
 # ---------------------------------------------------------------- real meshes
@@ -306,7 +317,7 @@ REAL_ANIMALS = ["horse", "lion", "wolf", "camel", "dog-lowpoly"]
 def _load_real(name):
     if not SHARED.is_dir():
         pytest.skip("../shared/meshes is not present")
-    from allorules.preparation import prepare_mesh
+    from allorules.mesh.repair import prepare_mesh
 
     prepared = prepare_mesh(SHARED / f"{name}.obj")
     return Body(prepared.vertices, prepared.faces)
@@ -316,16 +327,16 @@ def _load_real(name):
 @pytest.mark.parametrize("name", REAL_ANIMALS)
 def test_real_quadrupeds_are_labelled(name):
     body = _load_real(name)
-    labelled = segmentation.label_quadruped(body)
+    labelled = label_quadruped(body)
     # All six regions present, legs in two separate parts each, up along the file's +Y.
     mass = lumped_mass(body.vertices, body.faces)
     shares = np.bincount(labelled.labels, weights=mass, minlength=6) / mass.sum()
     assert (labelled.labels >= 0).all()
-    assert np.all(shares[2:] > 0.02), dict(zip(segmentation.QUADRUPED_REGIONS, shares))
+    assert np.all(shares[2:] > 0.02), dict(zip(QUADRUPED_REGIONS, shares))
     assert labelled.frame.up[1] > 0.95
     graph = vertex_graph(body.vertices, body.faces)
     for limb in ("forelimbs", "hindlimbs"):
-        parts = connected_parts(graph, labelled.region_mask(limb))
+        parts = vertex_components(graph, labelled.region_mask(limb))
         # the camel's forelegs touch at the knees (the mesh joins them there): one piece
         expected = 1 if (name, limb) == ("camel", "forelimbs") else 2
         assert parts.max() + 1 == expected, f"{name}: {limb} in {parts.max() + 1} parts"
@@ -335,7 +346,7 @@ def test_real_quadrupeds_are_labelled(name):
 def test_real_camel_forelegs_that_touch_at_the_knees_reach_up_to_the_body():
     """Two legs touching is not the body: the sweep goes on past the knees to the armpits."""
     body = _load_real("camel")
-    labelled = segmentation.label_quadruped(body)
+    labelled = label_quadruped(body)
     height = body.vertices @ labelled.frame.up
     height = (height - height.min()) / np.ptp(height)
     # knees at ~0.3 of the height, the armpits at ~0.5 (looked at in the region picture)
@@ -348,10 +359,10 @@ def test_real_camel_forelegs_that_touch_at_the_knees_reach_up_to_the_body():
 @pytest.mark.parametrize("name", ["wolf", "horse", "camel"])
 def test_real_labels_do_not_depend_on_a_random_rotation(name):
     body = _load_real(name)
-    reference = segmentation.label_quadruped(body)
+    reference = label_quadruped(body)
     for seed in (11, 12):
         matrix = random_rotation(seed)
-        turned = segmentation.label_quadruped(Body(body.vertices @ matrix.T, body.faces))
+        turned = label_quadruped(Body(body.vertices @ matrix.T, body.faces))
         assert area_agreement(turned.labels, reference.labels, body.vertices, body.faces) >= 0.99
         np.testing.assert_allclose(turned.frame.up, matrix @ reference.frame.up, atol=0.02)
 
@@ -361,7 +372,7 @@ def test_real_elephant_is_refused_clearly():
     """The shared elephant is a cartoon standing on two legs: not labelled, with a clear reason."""
     body = _load_real("elephant")
     with pytest.raises(SegmentationError, match="quadruped"):
-        segmentation.label_quadruped(body)
+        label_quadruped(body)
 
 
 # ---------------------------------------------------------------- CLI
@@ -375,7 +386,7 @@ def test_segment_command_writes_labels_seg_and_picture(tmp_path):
         pytest.skip("../shared/meshes is not present")
     labels, seg, png = tmp_path / "camel.labels.json", tmp_path / "camel.seg", tmp_path / "camel.png"
     assert main(["-q", "segment", str(mesh), "-o", str(labels), "--seg", str(seg), "--png", str(png)]) == 0
-    assert json.loads(labels.read_text())["regions"] == list(segmentation.QUADRUPED_REGIONS)
+    assert json.loads(labels.read_text())["regions"] == list(QUADRUPED_REGIONS)
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
     assert main(["-q", "segment", str(mesh), "-o", str(labels)]) != 0  # exists: kept without --force
     patches_png = tmp_path / "patches.png"
@@ -386,7 +397,6 @@ def test_segment_command_writes_labels_seg_and_picture(tmp_path):
 
 
 def test_measure_command_on_a_generated_horse(tmp_path, generated, capsys):
-    pytest.importorskip("allorules.measures")
     from allorules.cli import main
 
     animal = generated["horse"]
@@ -401,11 +411,11 @@ def test_measure_command_on_a_generated_horse(tmp_path, generated, capsys):
 
 def test_a_region_the_labeller_cannot_find_is_an_error_not_an_empty_region(generated, monkeypatch):
     # When no neck is found the labeller must say so instead of returning empty regions.
-    from allorules import labeller
+    from allorules.segment import labeller
 
     animal = generated["horse"]
     monkeypatch.setattr(labeller, "_neck_cuts", lambda *args: (None, None))
     with pytest.raises(SegmentationError, match="found no head and no neck"):
-        segmentation.label_quadruped(Body(animal.vertices, animal.faces))
-    partial = segmentation.label_quadruped(Body(animal.vertices, animal.faces), complete=False)
+        label_quadruped(Body(animal.vertices, animal.faces))
+    partial = label_quadruped(Body(animal.vertices, animal.faces), complete=False)
     assert not np.isin(partial.labels, [0, 1]).any()

@@ -4,12 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from allorules.basis import compute_basis
 from allorules.body import Body
-from allorules.global_scaling import StressGauge
-from allorules.plugins import registry_for
-from allorules.rules import load_ruleset
-from allorules.solver import StepEnergy, StepTransform, cached_measure, energy_terms, solve_step
+from allorules.measure.stress import StressGauge
+from allorules.plugins.registry import registry_for
+from allorules.rules.resolve import load_ruleset
+from allorules.solve.energy import StepEnergy, cached_measure, energy_terms
+from allorules.solve.step import solve_step
+from allorules.solve.transform import StepTransform
+from allorules.spectral.basis import compute_basis
 
 VERTICES = 1000
 MODES = 300
@@ -22,7 +24,7 @@ def _no_cache(monkeypatch):
 
 @pytest.fixture(scope="module")
 def animal():
-    from allorules.quadruped import generate_quadruped
+    from allorules.mesh.quadruped import generate_quadruped
 
     body = generate_quadruped("horse", vertices=VERTICES).body()
     basis = compute_basis(body.vertices, body.faces, MODES, use_cache=False)

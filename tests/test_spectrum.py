@@ -8,9 +8,9 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from allorules.basis import compute_basis
 from allorules.cli import main
-from allorules.spectrum import fit_power_law, spectrum_fit
+from allorules.spectral.basis import compute_basis
+from allorules.spectral.spectrum import fit_power_law, spectrum_fit
 
 
 def test_fit_recovers_a_known_power_law():

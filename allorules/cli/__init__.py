@@ -13,8 +13,8 @@ import importlib
 import logging
 import sys
 
-from .. import __version__
-from ..errors import AllorulesError
+from allorules import __version__
+from allorules.errors import AllorulesError
 
 # Modules of this package that define sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = [

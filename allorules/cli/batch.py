@@ -25,6 +25,6 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
-    from ..batch import run_batch_command
+    from allorules.runs.batch import run_batch_command
 
     return run_batch_command(arguments)

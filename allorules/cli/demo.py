@@ -14,7 +14,14 @@ log = logging.getLogger("allorules")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
-    from ..demo import DEFAULT_FOLDER, DEFAULT_MODES, DEFAULT_PRESET, DEFAULT_VERTICES, QUICK_MODES, QUICK_VERTICES
+    from allorules.runs.demo import (
+        DEFAULT_FOLDER,
+        DEFAULT_MODES,
+        DEFAULT_PRESET,
+        DEFAULT_VERTICES,
+        QUICK_MODES,
+        QUICK_VERTICES,
+    )
 
     parser = subcommands.add_parser(
         "demo",
@@ -39,7 +46,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
-    from ..demo import format_rule_table, run_demo
+    from allorules.runs.demo import format_rule_table, run_demo
 
     demo = run_demo(arguments.output, preset=arguments.preset, vertices=arguments.vertices, modes=arguments.modes,
                     quick=arguments.quick, force=arguments.force)

@@ -5,8 +5,13 @@ import argparse
 import json
 import logging
 
-from ..errors import AllorulesError
-from ..experiments import global_experiment, local_experiment, plot_global, plot_local
+from allorules.errors import AllorulesError
+from allorules.spectral.experiments import (
+    global_experiment,
+    local_experiment,
+    plot_global,
+    plot_local,
+)
 
 log = logging.getLogger("allorules")
 

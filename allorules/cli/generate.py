@@ -6,9 +6,14 @@ import json
 import logging
 from pathlib import Path
 
-from ..errors import AllorulesError
-from ..export import atomic_write, save_mesh
-from ..quadruped import PRESETS, QuadrupedParameterError, generate_quadruped
+from allorules.errors import AllorulesError
+from allorules.files import atomic_write
+from allorules.mesh.quadruped import (
+    PRESETS,
+    QuadrupedParameterError,
+    generate_quadruped,
+)
+from allorules.output.export import save_mesh
 
 log = logging.getLogger("allorules")
 

@@ -2,7 +2,7 @@
 
 The regions come from ``--segmentation FILE`` (an allorules labels ``.json``, or a Princeton
 ``.seg`` whose segment ids 0…5 are head, neck, chest, abdomen, forelimbs, hindlimbs), or from the
-automatic quadruped labeller when no file is given. Quantities are in the mesh's own units
+ruleset's segmenter (the automatic quadruped labeller by default) when no file is given. Quantities are in the mesh's own units
 (mass = volume, density 1); only their ratios mean anything to the scaler.
 """
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import AllorulesError, MeasurementError, SegmentationError
-from .segment import add_direction_arguments, load_body
+from allorules.cli.arguments import add_direction_arguments
+from allorules.errors import AllorulesError, MeasurementError, SegmentationError
 
 log = logging.getLogger("allorules")
 
@@ -24,7 +24,7 @@ DEFAULT_RULESET = "quadruped"
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
-    from ..plugins import add_plugin_argument
+    from allorules.cli.arguments import add_plugin_argument
 
     parser = subcommands.add_parser(
         "measure",
@@ -46,25 +46,29 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
-def segmented_body(arguments: argparse.Namespace):
-    """The prepared body with regions from the given file or the automatic labeller."""
-    from ..segmentation import labelled_body
+def segmented_body(arguments: argparse.Namespace, ruleset, registry):
+    """The prepared body with regions from the given file or the ruleset's segmenter."""
+    from allorules.body import Body
+    from allorules.runs.pipeline import label, prepare, wanted_regions
 
-    body = load_body(arguments.mesh)
-    labelled = labelled_body(body, arguments.segmentation or None, up=arguments.up, forward=arguments.forward)
+    prepared = prepare(arguments.mesh)
+    labelled = label(Body(prepared.vertices, prepared.faces), registry=registry, segmenter=ruleset.segmenter,
+                     labels=arguments.segmentation or None, up=arguments.up, forward=arguments.forward,
+                     regions=wanted_regions(ruleset))
     return labelled, str(arguments.segmentation) if arguments.segmentation else "automatic"
 
 
 def run(arguments: argparse.Namespace) -> int:
-    from .. import measures
-    from ..plugins import registry_for
-    from ..rules import load_ruleset
+    from allorules.measure.mass import body_mass
+    from allorules.measure.stress import peak_stress
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
 
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     if arguments.png:
         _check_picture_path(arguments.png, arguments.mesh)
-    body, source = segmented_body(arguments)
+    body, source = segmented_body(arguments, ruleset, registry)
     missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]
     if missing:
         raise SegmentationError(
@@ -74,12 +78,13 @@ def run(arguments: argparse.Namespace) -> int:
     result = {
         "mesh": str(arguments.mesh),
         "segmentation": source,
+        "labels": body.labelling.as_dict() if body.labelling else None,
         "ruleset": ruleset.name,
         "vertices": int(body.vertex_count),
         "frame": None if body.frame is None else {"up": [float(x) for x in body.frame.up],
                                                   "forward": [float(x) for x in body.frame.forward]},
-        "body_mass": _finite(measures.body_mass(body), "body mass"),
-        "peak_stress": _finite(measures.peak_stress(body), "peak stress"),
+        "body_mass": _finite(body_mass(body), "body mass"),
+        "peak_stress": _finite(peak_stress(body), "peak stress"),
         "rules": [],
     }
     for rule in ruleset.rules:
@@ -123,17 +128,18 @@ def _check_picture_path(path: str, mesh: str) -> None:
 
 def _write_picture(body, path: str, result: dict) -> None:
     """Side and three-quarter views: regions in colour, the load-bearing section marked."""
-    from .. import measures, render
+    from allorules.measure.stress import load_bearing_section
+    from allorules.output.render import region_colors, region_legend, render_views
 
     annotations = []
     try:
-        chosen = measures.load_bearing_section(body)
+        chosen = load_bearing_section(body)
         annotations.append((np.asarray(chosen.section.loop.points).mean(axis=0), "load-bearing section"))
     except AllorulesError:
         pass
-    render.render_views(
+    render_views(
         body.vertices, body.faces, path=path, views=("side", "three-quarter"), frame=body.frame,
-        vertex_colors=render.region_colors(body.labels, body.region_names),
-        legend=render.region_legend(body.labels, body.region_names), annotations=annotations or None,
+        vertex_colors=region_colors(body.labels, body.region_names),
+        legend=region_legend(body.labels, body.region_names), annotations=annotations or None,
         title=f"{Path(result['mesh']).name}: body mass {result['body_mass']:.4g}, peak stress {result['peak_stress']:.4g}",
     )

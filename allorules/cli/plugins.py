@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..plugins import add_plugin_argument, registry_for
+from allorules.cli.arguments import add_plugin_argument
+from allorules.plugins.registry import registry_for
 
 
 def register(subcommands) -> None:
@@ -35,14 +36,13 @@ def run(arguments: argparse.Namespace) -> int:
                                                                            else "whole body")
                     print(f"    {name}: {spec.description} [{spec.kind}, isometric exponent "
                           f"{spec.isometric_exponent:.4g}, {region}]")
-                elif kind == "segmenter":
-                    print(f"    {name}: {segmenters[name].description}")
-                elif kind == "constraint":
-                    spec = constraints[name]
+                elif kind in ("segmenter", "constraint"):
+                    spec = segmenters[name] if kind == "segmenter" else constraints[name]
                     print(f"    {name}: {spec.description}")
+                    word = "option" if kind == "segmenter" else "parameter"
                     for parameter, parameter_spec in spec.parameter_specs().items():
-                        print(f"      parameter {parameter} (default {parameter_spec.default!r}): "
-                              f"{parameter_spec.description}")
+                        given = "required" if parameter_spec.required else f"default {parameter_spec.default!r}"
+                        print(f"      {word} {parameter} ({given}): {parameter_spec.description}")
         if not info.provides and not info.failed:
             print("  provides nothing")
         for message in info.failed:

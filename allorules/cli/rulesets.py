@@ -6,8 +6,12 @@ import json
 import sys
 import textwrap
 
-from ..plugins import add_plugin_argument, registry_for
-from ..rules import check_ruleset, dump_ruleset, list_rulesets, load_ruleset, ruleset_schema, ruleset_to_dict
+from allorules.cli.arguments import add_plugin_argument
+from allorules.plugins.registry import registry_for
+from allorules.rules.find import list_rulesets
+from allorules.rules.model import dump_ruleset, ruleset_to_dict
+from allorules.rules.resolve import check_ruleset, load_ruleset
+from allorules.rules.schema import ruleset_schema
 
 
 def register(subcommands) -> None:

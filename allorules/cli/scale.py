@@ -1,100 +1,157 @@
-"""``allorules scale``: scale a mesh (global allometric scaling here; biology-aware elsewhere).
+"""``allorules scale``: scale a mesh, globally, with a ruleset, or one region locally.
 
-* ``allorules scale MESH --global --mass-ratio R -o OUT [--report REPORT.json]``: find α and s of
-  Eq. 4 step by step so that the mass changes by R at unchanged peak stress (METHOD §4).
-* ``allorules scale MESH --global --alpha A [--scale S] -o OUT``: Eq. 4 once, with the user's α, s.
+* ``allorules scale MESH --ruleset quadruped --mass-ratio 2 -o OUT.obj [--report R.json]
+  [--rule neck-length=0.45] [--segmentation LABELS.json] [--keep-unconverged]`` — biology-aware
+  scaling (docs/biology-scaling.md).
+* ``allorules scale MESH --global --mass-ratio R -o OUT`` — one α for the whole body, the mass
+  changed by R at unchanged peak limb stress; ``--global --alpha A [--scale S]`` applies the
+  power law once with the user's α.
+* ``allorules scale MESH --region head --alpha 0.3 -o OUT`` — the local power law on one region;
+  ``--arithmetic F`` scales the region's vertices by F instead (for comparison only: it tears).
 
-The biology-aware options (``--ruleset``, ``--region``, …) are added to the same parser by
-:mod:`allorules.cli.scale_ruleset` and handled there: :func:`run` hands over when that module's
-``wanted(arguments)`` says so. Nothing is written unless the run succeeded: a failed run exits
-non-zero with one line saying why (and the closest result reached), and writes only the report.
+Every kind goes through :mod:`allorules.runs.pipeline`. Output paths are checked before any work.
+A run that misses a target exits non-zero and writes NO mesh, only the report (``converged:
+false``), unless ``--keep-unconverged``, which writes the mesh as ``OUT.unconverged.EXT`` with a
+warning, never under the name asked for.
 """
 from __future__ import annotations
 
 import argparse
 import logging
 import math
+from dataclasses import replace
 from pathlib import Path
 
-from ..errors import AllorulesError, MeshError, ScalingError
+from allorules.cli.arguments import add_direction_arguments, add_plugin_argument
+from allorules.errors import AllorulesError, MeshError, ScalingError
 
 log = logging.getLogger("allorules")
-
-
-def _ruleset_module():
-    try:
-        from . import scale_ruleset
-    except ImportError:  # pragma: no cover - the biology-aware half is optional
-        return None
-    return scale_ruleset
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
     parser = subcommands.add_parser(
         "scale",
-        help="scale a mesh allometrically (--global, or --ruleset for biology-aware scaling)",
-        description="Global allometric scaling (paper Eq. 4): with --mass-ratio R the mass changes by R and "
-        "the peak stress in the legs stays as it was (heavier animals get relatively thicker legs); with "
-        "--alpha A [--scale S] the spectrum is scaled by (λ_i/λ_1)^A once. α > 0 amplifies fine features "
-        "(limbs thicken relative to the body), α < 0 damps them.",
+        help="scale a mesh allometrically (--ruleset for biology-aware scaling, --global, or --region)",
+        description="Biology-aware scaling with --ruleset NAME --mass-ratio R: the ruleset's allometric rules "
+        "(leg length, chest girth, head and abdominal mass against body mass) and its limit on limb stress are "
+        "met. --global: one exponent α for the whole body (--mass-ratio R keeps the peak limb stress; --alpha A "
+        "[--scale S] applies the power law once: α > 0 amplifies fine features, α < 0 damps them). --region "
+        "NAME --alpha A: one region only. See docs/biology-scaling.md and docs/method.md.",
     )
     parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
-    parser.add_argument("--global", dest="global_scaling", action="store_true",
-                        help="global allometric scaling (one α for the whole body)")
+    kind = parser.add_argument_group("what to do (one of)")
+    kind.add_argument("--ruleset", metavar="NAME|FILE", help="biology-aware scaling with this ruleset (a name or a .yaml path)")
+    kind.add_argument("--global", dest="global_scaling", action="store_true",
+                      help="global allometric scaling (one α for the whole body)")
+    kind.add_argument("--region", metavar="NAME", help="local scaling of one region, with --alpha")
     parser.add_argument("--mass-ratio", type=float, metavar="R", help="total body-mass ratio (2 doubles the mass, 0.5 halves it)")
     parser.add_argument("--alpha", type=float, metavar="A",
-                        help="with --global: apply Eq. 4 with this α directly (no stress constraint)")
-    parser.add_argument("--scale", type=float, metavar="S", help="with --alpha: the isometric factor s (default 1)")
-    parser.add_argument("-o", dest="output", metavar="OUT", help="output mesh (format from the extension)")
+                        help="with --global: apply the power law with this α directly (no stress constraint); with "
+                        "--region: the local exponent (α > 0 shrinks the region, α < 0 grows it)")
+    parser.add_argument("--scale", type=float, metavar="S", help="with --global --alpha: the isometric factor s (default 1)")
+    parser.add_argument("--arithmetic", type=float, metavar="F", help="with --region: scale the region's vertices by F "
+                        "instead (the paper's arithmetic variant, for comparison only: it tears seams)")
+    parser.add_argument("--rule", action="append", default=[], metavar="ID=EXPONENT",
+                        help="override one rule's exponent, e.g. --rule neck-length=0.45 (repeatable)")
+    parser.add_argument("--transform", choices=("per-mode", "per-axis"),
+                        help="how the power law acts on the coefficients: per-axis (default, in the animal's own axes) "
+                        "or per-mode (on each mode's vector length); overrides the ruleset's solver.transform")
+    parser.add_argument("--posture", choices=("keep", "upright", "free"),
+                        help="the stance through the steps: keep (default; legs upright, feet on the ground, legs' lines "
+                        "kept), upright (legs turned upright only) or free; overrides the ruleset's solver.posture")
+    parser.add_argument("-o", "--output", metavar="OUT", help="output mesh (format from the extension)")
     parser.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON (also when it fails)")
     parser.add_argument("--png", metavar="FILE.png", help="picture of the input and the output side by side, at true scale")
     parser.add_argument("--modes", type=int, metavar="M", help="harmonic basis size (default 1000, at most vertices − 1)")
     parser.add_argument("--section", metavar="REGION:FRACTION[:PART]",
                         help="load-bearing section for the stress, e.g. forelimbs:0.5 (default: the smallest limb "
                         "section away from junction and tip)")
-    parser.add_argument("--segmentation", metavar="FILE", help="labels file (.json or Princeton .seg); automatic labelling when not given")
+    parser.add_argument("--segmentation", metavar="FILE",
+                        help="labels file (.json or Princeton .seg) instead of the ruleset's segmenter")
+    parser.add_argument("--keep-unconverged", action="store_true",
+                        help="write the mesh of a run that missed its targets, as OUT.unconverged.EXT")
     parser.add_argument("--force", action="store_true", help="overwrite existing output files (never the input)")
     parser.add_argument("--no-cache", action="store_true", help="do not read or write the basis cache")
-    ruleset = _ruleset_module()
-    if ruleset is not None:
-        ruleset.add_arguments(parser)
+    add_direction_arguments(parser)
+    add_plugin_argument(parser)
     parser.set_defaults(run=run)
 
 
-def run(arguments: argparse.Namespace) -> int:
-    ruleset = _ruleset_module()
-    if ruleset is not None and ruleset.wanted(arguments):
-        if arguments.global_scaling:
-            raise AllorulesError("--global cannot be combined with --ruleset or --region; choose one kind of scaling")
-        return ruleset.run(arguments)
-    if not arguments.global_scaling:
-        raise AllorulesError("choose the kind of scaling: --global (with --mass-ratio R or --alpha A), or --ruleset NAME")
-    return run_global(arguments)
-
-
 # ---------------------------------------------------------------------------------------------
-# Global scaling
+# Checking the command line before any work
 
 
-def _check_arguments(arguments: argparse.Namespace) -> None:
-    from ..global_scaling import check_mass_ratio
+def _scaling(arguments: argparse.Namespace, registry):
+    """The pipeline's kind of scaling for these options (every option combination checked)."""
+    from allorules.runs.pipeline import (
+        GlobalScaling,
+        LocalScaling,
+        RawGlobalScaling,
+        RulesetScaling,
+    )
+    from allorules.runs.steps import check_mass_ratio
 
-    if (arguments.mass_ratio is None) == (arguments.alpha is None):
-        raise AllorulesError("--global needs exactly one of --mass-ratio R (stress kept) or --alpha A (raw Eq. 4)")
-    if arguments.mass_ratio is not None:
-        check_mass_ratio(arguments.mass_ratio)
-        if arguments.scale is not None:
-            raise AllorulesError("--scale goes with --alpha; with --mass-ratio the isometric factor is solved for")
-    else:
+    chosen = [name for name, given in (("--ruleset", arguments.ruleset), ("--global", arguments.global_scaling),
+                                       ("--region", arguments.region)) if given]
+    if len(chosen) != 1:
+        raise AllorulesError("choose the kind of scaling: --ruleset NAME (biology-aware), --global (with --mass-ratio R or --alpha A), or --region NAME"
+                             + (f" (got {' and '.join(chosen)})" if chosen else ""))
+    if arguments.modes is not None and arguments.modes < 2:
+        raise AllorulesError(f"--modes must be at least 2, got {arguments.modes}")
+    section = _section_choice(arguments.section)
+    if arguments.region:
+        if arguments.alpha is None and arguments.arithmetic is None:
+            raise ScalingError("--region needs --alpha A (local power law) or --arithmetic F (comparison only)")
+        if arguments.alpha is not None and not math.isfinite(arguments.alpha):
+            raise ScalingError(f"--alpha must be a finite number, got {arguments.alpha}")
+        return LocalScaling(arguments.region, 0.0 if arguments.alpha is None else float(arguments.alpha),
+                            arguments.arithmetic, arguments.transform or "per-axis")
+    if arguments.global_scaling:
+        if (arguments.mass_ratio is None) == (arguments.alpha is None):
+            raise AllorulesError("--global needs exactly one of --mass-ratio R (stress kept) or --alpha A (the power law once)")
+        if arguments.mass_ratio is not None:
+            if arguments.scale is not None:
+                raise AllorulesError("--scale goes with --alpha; with --mass-ratio the isometric factor is solved for")
+            return GlobalScaling(check_mass_ratio(arguments.mass_ratio), section)
         if not math.isfinite(arguments.alpha):
             raise ScalingError(f"--alpha must be a finite number, got {arguments.alpha}")
         if arguments.scale is not None and not (math.isfinite(arguments.scale) and arguments.scale > 0):
             raise ScalingError(f"--scale must be a positive number, got {arguments.scale}")
-    if arguments.modes is not None and arguments.modes < 2:
-        raise AllorulesError(f"--modes must be at least 2, got {arguments.modes}")
+        return RawGlobalScaling(float(arguments.alpha), 1.0 if arguments.scale is None else float(arguments.scale))
+    if arguments.mass_ratio is None:
+        raise ScalingError("--ruleset needs --mass-ratio R (2 doubles the mass, 0.5 halves it)")
+    check_mass_ratio(arguments.mass_ratio)
+    from allorules.rules.overrides import override_exponents, parse_rule_overrides
+    from allorules.rules.resolve import load_ruleset
+
+    ruleset = load_ruleset(arguments.ruleset, registry)
+    ruleset = override_exponents(ruleset, parse_rule_overrides(arguments.rule or []), registry)
+    if arguments.transform or arguments.posture:
+        ruleset = replace(ruleset, solver=replace(ruleset.solver, transform=arguments.transform or ruleset.solver.transform,
+                                                  posture=arguments.posture or ruleset.solver.posture))
+    return RulesetScaling(ruleset, arguments.mass_ratio, section)
+
+
+def _section_choice(text: str | None):
+    if not text:
+        return None
+    from allorules.measure.stress import SectionChoice
+
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        fraction = float(parts[1])
+        part = int(parts[2]) if len(parts) == 3 else None
+    except ValueError:
+        raise AllorulesError(f"--section {text!r}: write REGION:FRACTION[:PART], e.g. forelimbs:0.5 or hindlimbs:0.4:1") from None
+    if not 0.0 <= fraction <= 1.0:
+        raise AllorulesError(f"--section fraction must be between 0 (junction) and 1 (tip), got {fraction:g}")
+    return SectionChoice(parts[0], fraction, part)
 
 
 def output_path(arguments: argparse.Namespace) -> Path:
+    """The output mesh, checked (with the report) before any work."""
     mesh = Path(arguments.mesh)
     if not arguments.output:
         raise AllorulesError("give the output mesh with -o OUT (e.g. -o heavier.obj)")
@@ -114,136 +171,119 @@ def output_path(arguments: argparse.Namespace) -> Path:
     return output
 
 
-def _section_choice(text: str | None):
-    if not text:
-        return None
-    from ..measures import SectionChoice
-
-    parts = text.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError
-        fraction = float(parts[1])
-        part = int(parts[2]) if len(parts) == 3 else None
-    except ValueError:
-        raise AllorulesError(f"--section {text!r}: write REGION:FRACTION[:PART], e.g. forelimbs:0.5 or hindlimbs:0.4:1") from None
-    if not 0.0 <= fraction <= 1.0:
-        raise AllorulesError(f"--section fraction must be between 0 (junction) and 1 (tip), got {fraction:g}")
-    return SectionChoice(parts[0], fraction, part)
-
-
-def labelled_body(arguments: argparse.Namespace, prepared):
-    """The prepared body with regions from ``--segmentation`` or the automatic labeller."""
-    from ..body import Body
-    from ..segmentation import labelled_body as with_regions
-
-    return with_regions(Body(prepared.vertices, prepared.faces), arguments.segmentation or None,
-                        up=getattr(arguments, "up", None), forward=getattr(arguments, "forward", None))
-
-
-def save_scaled(output: Path, prepared, body, vertices, arguments: argparse.Namespace) -> None:
-    """Write the scaled body in the input's own layout (UVs, materials, detached parts kept), say
-    what the export could not carry over, and draw ``--png`` if asked."""
-    import numpy as np
-
-    from ..export import save_mesh
-
-    if getattr(prepared, "source", None) is not None:
-        result = save_mesh(output, prepared.source_positions(vertices), np.asarray(prepared.source.faces),
-                           source=prepared.source, input_path=arguments.mesh, overwrite=arguments.force)
-    else:
-        result = save_mesh(output, vertices, prepared.faces, input_path=arguments.mesh, overwrite=arguments.force)
-    for note in getattr(result, "notes", []) or []:
-        log.info("export: %s", note)
-    if getattr(arguments, "png", None):
-        from ..render import render_comparison
-
-        render_comparison([(body.vertices, body.faces, "input"), (vertices, body.faces, output.name)],
-                          path=arguments.png, normalise_size=False, frame=body.frame)
-        log.info("wrote %s", arguments.png)
-
-
 def write_report(path: str | None, report: dict) -> None:
     if not path:
         return
-    from ..export import write_json
+    from allorules.files import write_json
 
     write_json(path, report)
     log.info("wrote %s", path)
 
 
-def run_global(arguments: argparse.Namespace) -> int:
-    from ..body import Body
-    from ..global_scaling import ScalingResult, count_flipped_faces, scale_globally, scale_globally_raw
-    from ..measures import body_mass
-    from ..preparation import prepare_mesh
+# ---------------------------------------------------------------------------------------------
+# The run
 
-    _check_arguments(arguments)
+
+def run(arguments: argparse.Namespace) -> int:
+    from allorules.plugins.registry import registry_for
+    from allorules.runs import pipeline
+    from allorules.runs.progress import run_progress
+
+    registry = registry_for(arguments)
+    scaling = _scaling(arguments, registry)
     output = output_path(arguments)
-    section = _section_choice(arguments.section)
-    prepared = prepare_mesh(arguments.mesh)
-    for repair in prepared.repairs:
-        log.info("prepare: %s", repair)
-    base = {"input": str(arguments.mesh), "output": str(output), "vertices": int(len(prepared.vertices)),
-            "faces": int(len(prepared.faces)), "repairs": list(prepared.repairs)}
-
-    if arguments.alpha is not None:
-        body = Body(prepared.vertices, prepared.faces)
-        scale = 1.0 if arguments.scale is None else float(arguments.scale)
-        scaled = scale_globally_raw(body, float(arguments.alpha), scale, arguments.modes, use_cache=not arguments.no_cache)
-        report = {**base, "mode": "global-raw", "alpha": float(arguments.alpha), "scale": scale,
-                  "mass_ratio": body_mass(scaled) / body_mass(body),
-                  "flipped_faces": count_flipped_faces(body.vertices, scaled.vertices, body.faces), "converged": True}
-        save_scaled(output, prepared, body, scaled.vertices, arguments)
-        write_report(arguments.report, report)
-        print(f"{output}: α = {arguments.alpha:g}, s = {scale:g}: mass ×{report['mass_ratio']:.4f}, "
-              f"{report['flipped_faces']} flipped faces")
-        return 0
-
-    body = labelled_body(arguments, prepared)
-    from ..progress import run_progress
-
-    progress = run_progress("scaling steps")
     try:
-        result = scale_globally(body, arguments.mass_ratio, modes=arguments.modes, section=section,
-                                use_cache=not arguments.no_cache, progress=progress)
+        result_run = pipeline.run(arguments.mesh, scaling, registry=registry, labels=arguments.segmentation or None,
+                                  up=arguments.up, forward=arguments.forward, modes=arguments.modes,
+                                  use_cache=not arguments.no_cache, progress=run_progress("scaling steps"))
     except ScalingError as error:
-        closest = error.closest
-        if isinstance(closest, ScalingResult):
-            write_report(arguments.report, {**base, **closest.as_dict(), "error": str(error)})
-        else:
-            write_report(arguments.report, {**base, "mode": "global", "target_mass_ratio": arguments.mass_ratio,
-                                             "converged": False, "error": str(error)})
+        if arguments.report:
+            closest = error.closest
+            report = closest.as_dict() if hasattr(closest, "as_dict") and hasattr(closest, "body") else \
+                {"converged": False}
+            write_report(arguments.report, {"input": str(arguments.mesh), **report, "error": str(error)})
         raise
-    report = {**base, **result.as_dict()}
-    report.update(_independent_check(body, result))
-    if not result.converged:
-        write_report(arguments.report, report)
-        raise ScalingError(f"nothing written: {'; '.join(result.messages)}", closest=result)
-    save_scaled(output, prepared, body, result.body.vertices, arguments)
+    report = result_run.report()
+    report["output"] = str(output)
+    if isinstance(scaling, pipeline.RulesetScaling):
+        from allorules.rules.overrides import parse_rule_overrides
+
+        report["rule_overrides"] = parse_rule_overrides(arguments.rule or [])
+    if isinstance(scaling, pipeline.LocalScaling) and scaling.arithmetic_factor is not None:
+        log.warning("--arithmetic: the paper's bad example, for comparison only; the region's boundary tears")
+
+    written = output if result_run.converged else None
+    if not result_run.converged and arguments.keep_unconverged:
+        written = output.with_name(f"{output.stem}.unconverged{output.suffix}")
+        if written.exists() and not arguments.force:
+            raise MeshError(f"{written}: already exists; use --force to overwrite it")
+    if written is not None:
+        pipeline.save_output(result_run, written, overwrite=arguments.force)
+        if arguments.png:
+            pipeline.save_picture(result_run, arguments.png, output_name=written.name)
+            log.info("wrote %s", arguments.png)
+    report["output"] = None if written is None else str(written)
     write_report(arguments.report, report)
-    print(summary(output, report))
+    print(summary(scaling, result_run.result, report, written or output))
+    if not result_run.converged:
+        for message in result_run.result.messages:
+            log.warning("%s", message)
+        where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
+            f"no mesh written (use --keep-unconverged to write it as {output.stem}.unconverged{output.suffix})"
+        what = f"ruleset {scaling.ruleset.name!r}" if hasattr(scaling, "ruleset") else "the global run"
+        raise ScalingError(f"{what} did not reach its targets at mass ratio {scaling.mass_ratio:g}: "
+                           f"{result_run.result.messages[0]}; {where}")
+    if written is not None and hasattr(scaling, "ruleset"):
+        print(f"wrote {written}")
     return 0
 
 
-def _independent_check(body, result) -> dict:
-    """Mass and peak stress of the output measured from scratch (new contours, new choice)."""
-    from ..body import Body
-    from ..errors import MeasurementError
-    from ..measures import body_mass, peak_stress
-
-    fresh_in = Body(body.vertices, body.faces, body.labels, body.region_names, body.frame)
-    fresh_out = Body(result.body.vertices, body.faces, body.labels, body.region_names, body.frame)
-    check = {"mass_ratio_measured": body_mass(fresh_out) / body_mass(fresh_in)}
-    try:
-        check["stress_ratio_reselected"] = peak_stress(fresh_out) / peak_stress(fresh_in)
-    except MeasurementError as error:
-        check["stress_ratio_reselected"] = None
-        check["messages"] = list(result.messages) + [f"independent stress check failed: {error}"]
-    return check
+# ---------------------------------------------------------------------------------------------
+# What the terminal shows
 
 
-def summary(output: Path, report: dict) -> str:
+def summary(scaling, result, report: dict, output: Path) -> str:
+    from allorules.runs.pipeline import GlobalScaling, LocalScaling, RawGlobalScaling
+
+    if isinstance(scaling, RawGlobalScaling):
+        return (f"{output}: α = {scaling.alpha:g}, s = {scaling.scale:g}: mass ×{report['mass_ratio']:.4f}, "
+                f"{report['flipped_faces']} flipped faces")
+    if isinstance(scaling, LocalScaling):
+        what = (f"×{scaling.arithmetic_factor:g} (arithmetic)" if scaling.arithmetic_factor is not None
+                else f"α = {scaling.alpha:g}")
+        return (f"{output}: region {scaling.region} {what}; seam {report['seam']['seam']:.3g} (edge strain across its "
+                f"boundary over the strain on either side; about 1 is seamless), {report['flipped_faces']} flipped faces")
+    if isinstance(scaling, GlobalScaling):
+        return global_summary(output, report)
+    return format_table(result)
+
+
+def format_table(result) -> str:
+    """A ruleset run as the terminal shows it: one row per rule, then the body-wide figures."""
+    rows = [("rule", "region", "measure", "target", "achieved", "error")]
+    for rule in result.rules:
+        rows.append((rule.id, rule.region or "-", rule.measure, f"{rule.exponent:.3f}", f"{rule.achieved_exponent:.3f}",
+                     f"{rule.error:+.3f}"))
+    widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]))]
+    lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
+    lines.insert(1, "  ".join("-" * width for width in widths))
+    stress = "n/a" if result.stress_ratio is None else f"{result.stress_ratio:.4f}"
+    lines.append("")
+    lines.append(f"mass ratio {result.mass_ratio:.4f} (target {result.target_mass_ratio:g}), stress ratio {stress}, "
+                 f"{len(result.steps)} steps, {result.flipped_faces} flipped faces, "
+                 f"{'converged' if result.converged else 'NOT converged'}")
+    for key, value in result.constraints.items():
+        lines.append(f"constraint {key}: residual {value:+.4f}")
+    if result.posture:
+        tilt = max(change["tilt_degrees"] for change in result.posture.values())
+        lift = max(change["foot_lift"] for change in result.posture.values())
+        bend = max(change["bend"] for change in result.posture.values())
+        lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length, bow added up to "
+                     f"{100 * bend:+.1f}% of a leg's length (not rules; see the report's posture)")
+    return "\n".join(lines)
+
+
+def global_summary(output: Path, report: dict) -> str:
     """The terminal's few lines about a global run."""
     alphas, scales = report["alphas"], report["scales"]
     span = (lambda values: f"{min(values):.4g}…{max(values):.4g}" if len(values) > 1 else f"{values[0]:.4g}") if alphas else None

@@ -1,14 +1,17 @@
-"""``allorules segment MESH``: label a mesh's anatomical regions, automatically or from patches.
+"""``allorules segment MESH``: label a mesh's regions with a segmenter, or over-segment it into patches.
 
-* ``allorules segment horse.obj -o horse.labels.json --png regions.png`` — automatic quadruped
-  labelling (``--up``/``--forward`` override the detected directions), ``--seg`` also writes a
-  Princeton ``.seg``.
+* ``allorules segment horse.obj -o horse.labels.json --png regions.png`` — the automatic quadruped
+  labeller (``--up``/``--forward`` override the detected directions); ``--segmenter NAME
+  [--option KEY=VALUE] [--plugin PATH]`` uses another segmenter (a plugin's), ``--ruleset NAME``
+  the ruleset's; ``--seg`` also writes a Princeton ``.seg``.
 * ``allorules segment horse.obj --patches 24 --png patches.png`` — the paper's path: numbered
   patches (labels file ``<mesh>.patches.json`` unless ``-o``) and a picture to choose from; then
-  ``allorules segment horse.obj --patches 24 --merge merge.yaml -o horse.labels.json``.
+  ``allorules segment horse.obj --patches 24 --merge merge.yaml -o horse.labels.json`` (the
+  ``merge-file`` segmenter).
 
-Labels refer to the vertices of the prepared mesh (see :mod:`allorules.preparation`), which is
-what every other command works on. Existing output files are kept unless ``--force``.
+Labels refer to the vertices of the prepared mesh (:mod:`allorules.mesh.repair`), which is what
+every other command works on, and keep every region the segmenter found. Existing output files
+are kept unless ``--force``.
 """
 from __future__ import annotations
 
@@ -18,43 +21,20 @@ from pathlib import Path
 
 import numpy as np
 
-from ..body import Body
-from ..errors import AllorulesError, SegmentationError
+from allorules.body import Body
+from allorules.cli.arguments import add_direction_arguments, add_plugin_argument
+from allorules.errors import AllorulesError, SegmentationError
 
 log = logging.getLogger("allorules")
-
-_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-
-
-def parse_direction(text: str) -> np.ndarray:
-    """A direction from the command line: ``+y``, ``-z``, ``x`` or three numbers ``0,1,0``."""
-    cleaned = text.strip().lower()
-    sign = -1.0 if cleaned.startswith("-") else 1.0
-    name = cleaned.lstrip("+-")
-    if name in _AXES:
-        return sign * np.array(_AXES[name])
-    try:
-        values = np.array([float(part) for part in cleaned.replace(" ", ",").split(",") if part], dtype=float)
-    except ValueError:
-        values = np.zeros(0)
-    if values.shape != (3,) or not np.isfinite(values).all() or np.linalg.norm(values) == 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a direction; write +y, -z or three numbers like 0,1,0")
-    return values / np.linalg.norm(values)
-
-
-def add_direction_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--up", type=parse_direction, metavar="DIR",
-                        help="the body's up direction (feet to back), e.g. +y or 0,0,1; detected when not given")
-    parser.add_argument("--forward", type=parse_direction, metavar="DIR",
-                        help="the body's forward direction (tail to head), e.g. +x; detected when not given")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
     parser = subcommands.add_parser(
         "segment",
-        help="label head, neck, chest, abdomen, forelimbs, hindlimbs (automatic, or patches + merge file)",
-        description="Automatic quadruped labelling, or (with --patches) the paper's over-segmentation into "
-        "numbered patches that a merge file (YAML: region: [patch ids]) turns into regions.",
+        help="label head, neck, chest, abdomen, forelimbs, hindlimbs (automatic, a plugin's segmenter, or patches + merge file)",
+        description="Label the regions with a segmenter (the automatic quadruped labeller by default), or (with "
+        "--patches) over-segment into numbered patches that a merge file (YAML: region: [patch ids]) turns into "
+        "regions. See docs/segmentation.md.",
     )
     parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
     parser.add_argument("-o", "--output", metavar="LABELS.json",
@@ -62,24 +42,20 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         "or <mesh name>.patches.json for patches)")
     parser.add_argument("--seg", metavar="FILE.seg", help="also write per-face labels (Princeton benchmark .seg)")
     parser.add_argument("--png", metavar="FILE.png", help="write a picture: regions in colour, or numbered patches")
+    parser.add_argument("--segmenter", metavar="NAME", help="the segmenter to label with (default: the ruleset's, "
+                        "else auto-quadruped); 'allorules plugins' lists them and their options")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="an option of the segmenter, e.g. --option patches=24 (repeatable)")
+    parser.add_argument("--ruleset", metavar="NAME|FILE", help="label with this ruleset's segmenter and options")
     parser.add_argument("--patches", type=int, metavar="N", nargs="?", const=24,
-                        help="over-segment into N connected patches (default 24) instead of labelling automatically")
+                        help="over-segment into N connected patches (default 24) instead of labelling")
     parser.add_argument("--seed", type=int, default=0, help="seed of the patch clustering (default 0)")
     parser.add_argument("--merge", metavar="MERGE.yaml",
                         help="with --patches: merge the patches into regions as this file says")
     add_direction_arguments(parser)
+    add_plugin_argument(parser)
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     parser.set_defaults(run=run)
-
-
-def load_body(path: str) -> Body:
-    """The prepared body of a mesh file, with each repair logged."""
-    from ..preparation import prepare_mesh
-
-    prepared = prepare_mesh(path)
-    for repair in prepared.repairs:
-        log.info("prepare: %s", repair)
-    return Body(prepared.vertices, prepared.faces)
 
 
 def _check_output(path: Path, mesh: Path, force: bool) -> Path:
@@ -92,44 +68,87 @@ def _check_output(path: Path, mesh: Path, force: bool) -> Path:
     return path
 
 
+def segmenter_use(name: str, option_texts: list[str], registry):
+    """The segmenter ``name`` with the command line's ``--option KEY=VALUE`` values, checked."""
+    import yaml
+
+    from allorules.plugins.specs import parameter_problems
+    from allorules.rules.model import SegmenterUse
+
+    specs = registry.segmenter(name).parameter_specs()
+    options = {}
+    for text in option_texts:
+        key, sep, value = text.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise SegmentationError(f"--option {text!r}: write KEY=VALUE, e.g. --option patches=24")
+        try:
+            parsed = yaml.safe_load(value) if value.strip() else ""
+        except yaml.YAMLError:
+            parsed = value
+        options[key] = Path(value).expanduser().resolve() if key in specs and specs[key].kind is Path else parsed
+    for key, problem in parameter_problems(options, specs, word="option"):
+        raise SegmentationError(f"--option {key}: segmenter {name!r}: {problem}")
+    return SegmenterUse(name, options)
+
+
 def run(arguments: argparse.Namespace) -> int:
-    from .. import segmentation
+    from allorules.output.render import render_regions
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.model import SegmenterUse
+    from allorules.runs.pipeline import label, prepare
+    from allorules.segment.labels_io import write_labels, write_seg
+    from allorules.segment.patches import spectral_patches
+    from allorules.segment.regions import patch_body
 
     mesh = Path(arguments.mesh)
     if arguments.merge and arguments.patches is None:
         raise SegmentationError("--merge needs --patches N (the same N the patch picture was made with)")
+    if arguments.patches is not None and (arguments.segmenter or arguments.ruleset or arguments.option):
+        raise SegmentationError("--patches makes patches (with --merge: the merge-file segmenter); leave out "
+                                "--segmenter, --option and --ruleset")
     default_suffix = ".patches.json" if arguments.patches is not None and not arguments.merge else ".labels.json"
     output = Path(arguments.output) if arguments.output else Path(mesh.name).with_suffix("").with_suffix(default_suffix)
-    outputs = [_check_output(output, mesh, arguments.force)]
+    _check_output(output, mesh, arguments.force)
     for extra in (arguments.seg, arguments.png):
         if extra:
-            outputs.append(_check_output(Path(extra), mesh, arguments.force))
-    body = load_body(arguments.mesh)
+            _check_output(Path(extra), mesh, arguments.force)
+    registry = registry_for(arguments)
+    if arguments.ruleset:
+        from allorules.rules.resolve import load_ruleset
 
-    if arguments.patches is not None:
-        patches = segmentation.spectral_patches(body.vertices, body.faces, arguments.patches, seed=arguments.seed)
-        frame = _frame_or_none(body, arguments)
-        body = Body(body.vertices, body.faces, frame=frame)
-        if arguments.merge:
-            labelled = segmentation.apply_merge_file(body, patches, arguments.merge)
-            numbered = False
-            what = f"{len(labelled.region_names)} regions from {int(patches.max()) + 1} patches"
-        else:
-            labelled = segmentation.patch_body(body, patches)
-            numbered = True
-            what = f"{int(patches.max()) + 1} patches"
+        use = load_ruleset(arguments.ruleset, registry).segmenter
+        if arguments.segmenter or arguments.option:
+            use = segmenter_use(arguments.segmenter or use.name, arguments.option, registry)
+    elif arguments.merge:
+        use = SegmenterUse("merge-file", {"path": Path(arguments.merge).resolve(), "patches": arguments.patches,
+                                          "seed": arguments.seed})
     else:
-        labelled = segmentation.label_quadruped(body, up=arguments.up, forward=arguments.forward)
-        numbered = False
-        what = "6 regions (automatic)"
+        use = segmenter_use(arguments.segmenter or "auto-quadruped", arguments.option, registry)
+    prepared = prepare(arguments.mesh)
+    body = Body(prepared.vertices, prepared.faces)
 
-    segmentation.write_labels(output, labelled)
+    numbered = False
+    if arguments.patches is not None and not arguments.merge:
+        patches = spectral_patches(body.vertices, body.faces, arguments.patches, seed=arguments.seed)
+        labelled = patch_body(body, patches)
+        numbered = True
+        what = f"{int(patches.max()) + 1} patches"
+    else:
+        # every region the segmenter found is kept: a run folds what its ruleset does not list
+        labelled = label(body, registry=registry, segmenter=use, up=arguments.up, forward=arguments.forward,
+                         regions=())
+        what = f"{len(labelled.region_names)} regions ({labelled.labelling.source})"
+
+    write_labels(output, labelled)
     log.info("wrote %s: %s", output, what)
     if arguments.seg:
-        segmentation.write_seg(arguments.seg, labelled)
+        write_seg(arguments.seg, labelled)
         log.info("wrote %s", arguments.seg)
     if arguments.png:
-        segmentation.write_preview(labelled, arguments.png, numbered=numbered, title=f"{mesh.name}: {what}")
+        picture = labelled if labelled.frame is not None else labelled.with_labels(
+            labelled.labels, labelled.region_names, frame=_frame_or_none(body, arguments))
+        render_regions(picture, arguments.png, numbered=numbered, title=f"{mesh.name}: {what}")
         log.info("wrote %s", arguments.png)
     print(_summary(labelled))
     return 0
@@ -137,8 +156,8 @@ def run(arguments: argparse.Namespace) -> int:
 
 def _frame_or_none(body: Body, arguments: argparse.Namespace):
     """The body's frame for drawing patches: detected when possible, else the given/default one."""
-    from ..body import Frame
-    from ..labeller import label_quadruped
+    from allorules.body import Frame
+    from allorules.segment.labeller import label_quadruped
 
     try:
         return label_quadruped(body, up=arguments.up, forward=arguments.forward).frame
@@ -149,7 +168,7 @@ def _frame_or_none(body: Body, arguments: argparse.Namespace):
 
 
 def _summary(body: Body) -> str:
-    from ..laplacian import lumped_mass
+    from allorules.spectral.laplacian import lumped_mass
 
     mass = lumped_mass(body.vertices, body.faces)
     total = mass.sum()

@@ -5,9 +5,9 @@ import argparse
 import json
 import logging
 
-from ..basis import compute_basis, default_modes
-from ..preparation import prepare_mesh
-from ..spectrum import spectrum_fit
+from allorules.mesh.repair import prepare_mesh
+from allorules.spectral.basis import compute_basis, default_modes
+from allorules.spectral.spectrum import spectrum_fit
 
 log = logging.getLogger("allorules")
 
@@ -37,7 +37,7 @@ def run(arguments: argparse.Namespace) -> int:
                           progress=_progress("harmonic basis"))
     fit = spectrum_fit(basis, prepared.vertices)
     if arguments.plot:
-        from ..render import plot_spectrum
+        from allorules.output.render import plot_spectrum
 
         # Draw the modes that were fitted (1 … m−1): the constant mode's λ_0 is zero up to
         # round-off and has no place on log axes.
@@ -64,6 +64,6 @@ def run(arguments: argparse.Namespace) -> int:
 
 
 def _progress(description: str):
-    from ..progress import count_bar
+    from allorules.runs.progress import count_bar
 
     return count_bar(description)

@@ -26,8 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from allorules.errors import MeasurementError
-from allorules.hookspecs import hookimpl
-from allorules.specs import ConstraintSpec, ParameterSpec
+from allorules.plugins import ConstraintSpec, ParameterSpec, hookimpl
 
 
 def wing_area(body, region: str) -> float:

@@ -20,8 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from allorules.errors import MeasurementError
-from allorules.hookspecs import hookimpl
-from allorules.specs import MeasureSpec
+from allorules.plugins import MeasureSpec, hookimpl
 
 
 def surface_area(body, region: str | None) -> float:

@@ -28,8 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from allorules.errors import MeasurementError
-from allorules.hookspecs import hookimpl
-from allorules.specs import ConstraintSpec, ParameterSpec
+from allorules.plugins import ConstraintSpec, ParameterSpec, hookimpl
 
 
 def fineness_ratio(body) -> float:

@@ -1,0 +1,114 @@
+"""The public Python API: what a script needs, from one place.
+
+    from allorules.api import scale_mesh
+
+    run = scale_mesh("horse.obj", 2.0, ruleset="quadruped", output="big_horse.obj")
+    print(run.converged, run.report()["rules"])
+
+:func:`scale_mesh` is the whole pipeline in one call (:mod:`allorules.runs.pipeline`: prepare →
+label → scale → save); the stages are here too (:func:`prepare`, :func:`label`, :func:`scale`,
+:func:`save_output`), with the kinds of scaling (:class:`RulesetScaling`, :class:`GlobalScaling`,
+:class:`LocalScaling`, :class:`RawGlobalScaling`), the building blocks (harmonic basis, spectrum,
+measures, rulesets, plugins, the generated quadruped) and the errors. Everything a run can fail
+on is an :class:`AllorulesError` whose message says what to do.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+from allorules.body import UNLABELLED, Body, Frame, Labelling
+from allorules.errors import (
+    AllorulesError,
+    BasisError,
+    MeasurementError,
+    MeshError,
+    PluginError,
+    RulesetError,
+    ScalingError,
+    SegmentationError,
+)
+from allorules.measure.girth import region_girth
+from allorules.measure.length import region_length
+from allorules.measure.mass import body_mass, region_mass
+from allorules.measure.stress import SectionChoice, peak_stress
+from allorules.mesh.quadruped import generate_quadruped
+from allorules.mesh.repair import PreparedMesh, prepare_mesh
+from allorules.plugins import PluginRegistry, registry_for
+from allorules.rules.find import list_rulesets
+from allorules.rules.model import Rule, Ruleset, SegmenterUse
+from allorules.rules.resolve import load_ruleset
+from allorules.runs.pipeline import (
+    GlobalScaling,
+    LocalScaling,
+    RawGlobalScaling,
+    RulesetScaling,
+    Run,
+    label,
+    prepare,
+    run,
+    save_output,
+    save_picture,
+    scale,
+)
+from allorules.runs.progress import RunProgress
+from allorules.spectral.basis import HarmonicBasis, compute_basis
+from allorules.spectral.spectrum import spectrum_fit
+
+
+def scale_mesh(
+    mesh: str | Path | Any,
+    mass_ratio: float,
+    *,
+    ruleset: str | Path | Ruleset | None = "quadruped",
+    output: str | Path | None = None,
+    overwrite: bool = False,
+    labels: str | Path | None = None,
+    plugins: Iterable[str | Path] = (),
+    modes: int | None = None,
+    progress: RunProgress | None = None,
+) -> Run:
+    """Scale ``mesh`` (a file, a ``trimesh.Trimesh`` or a :class:`Body`) to ``mass_ratio`` times
+    its body mass: biology-aware with ``ruleset`` (a built-in name, a YAML path or a loaded
+    :class:`Ruleset`), or globally with ``ruleset=None``. Regions come from ``labels`` (a file)
+    or the ruleset's segmenter. With ``output``, the result is written in the input's own layout
+    when the run converged (an unconverged run raises :class:`ScalingError` and writes nothing);
+    the input is never overwritten. Returns the :class:`Run` (``run.report()`` is its JSON)."""
+    registry = registry_for(list(plugins))
+    if ruleset is None:
+        scaling = GlobalScaling(mass_ratio)
+    else:
+        loaded = ruleset if isinstance(ruleset, Ruleset) else load_ruleset(ruleset, registry)
+        scaling = RulesetScaling(loaded, mass_ratio)
+    if output is not None:
+        _check_output(Path(output), mesh, overwrite)
+    result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress)
+    if output is not None:
+        if not result.converged:
+            raise ScalingError(f"not written: the run did not reach its targets ({'; '.join(result.result.messages)})",
+                               closest=result.result)
+        save_output(result, output, overwrite=overwrite)
+    return result
+
+
+def _check_output(output: Path, mesh: Any, overwrite: bool) -> None:
+    """Before any work: the output is not the input, and not an existing file unless ``overwrite``."""
+    if isinstance(mesh, (str, Path)) and Path(mesh).exists() and output.exists() and output.resolve() == Path(mesh).resolve():
+        raise MeshError(f"{output}: refusing to overwrite the input mesh; choose another output name")
+    if output.exists() and not overwrite:
+        raise MeshError(f"{output}: already exists; pass overwrite=True to replace it")
+    if not output.parent.exists():
+        raise MeshError(f"{output.parent}: folder does not exist")
+
+
+__all__ = [
+    "scale_mesh", "run", "prepare", "label", "scale", "save_output", "save_picture", "Run",
+    "RulesetScaling", "GlobalScaling", "LocalScaling", "RawGlobalScaling",
+    "Body", "Frame", "Labelling", "UNLABELLED", "PreparedMesh", "prepare_mesh", "generate_quadruped",
+    "HarmonicBasis", "compute_basis", "spectrum_fit",
+    "body_mass", "region_mass", "region_length", "region_girth", "peak_stress", "SectionChoice",
+    "Ruleset", "Rule", "SegmenterUse", "load_ruleset", "list_rulesets", "PluginRegistry", "registry_for",
+    "RunProgress",
+    "AllorulesError", "MeshError", "BasisError", "SegmentationError", "MeasurementError", "PluginError",
+    "RulesetError", "ScalingError",
+]

@@ -1,0 +1,43 @@
+"""Options shared by several commands: ``--plugin PATH`` and the ``--up``/``--forward`` directions.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+
+def add_plugin_argument(parser: argparse.ArgumentParser) -> None:
+    """Add ``--plugin PATH`` (repeatable) to a command's parser."""
+    parser.add_argument(
+        "--plugin", dest="plugins", action="append", default=[], metavar="PATH", type=Path,
+        help="load a plugin from a .py file or a package folder (repeatable); "
+             "installed plugins (entry-point group 'allorules') are always loaded",
+    )
+
+
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def parse_direction(text: str) -> np.ndarray:
+    """A direction from the command line: ``+y``, ``-z``, ``x`` or three numbers ``0,1,0``."""
+    cleaned = text.strip().lower()
+    sign = -1.0 if cleaned.startswith("-") else 1.0
+    name = cleaned.lstrip("+-")
+    if name in _AXES:
+        return sign * np.array(_AXES[name])
+    try:
+        values = np.array([float(part) for part in cleaned.replace(" ", ",").split(",") if part], dtype=float)
+    except ValueError:
+        values = np.zeros(0)
+    if values.shape != (3,) or not np.isfinite(values).all() or np.linalg.norm(values) == 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a direction; write +y, -z or three numbers like 0,1,0")
+    return values / np.linalg.norm(values)
+
+
+def add_direction_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--up", type=parse_direction, metavar="DIR",
+                        help="the body's up direction (feet to back), e.g. +y or 0,0,1; detected when not given")
+    parser.add_argument("--forward", type=parse_direction, metavar="DIR",
+                        help="the body's forward direction (tail to head), e.g. +x; detected when not given")

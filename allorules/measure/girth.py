@@ -1,0 +1,194 @@
+"""Girths (METHOD §3): heart girth, the largest closed section of the chest across the torso axis
+behind the forelimbs, and the girth of any other region.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from allorules.body import Body
+from allorules.errors import MeasurementError
+from allorules.measure.cache import measured
+from allorules.measure.length import region_skeleton
+from allorules.measure.limbs import limb_sections
+from allorules.measure.parts import (
+    LIMB_REGIONS,
+    SECTION_COUNT,
+    TORSO_REGIONS,
+    RegionPart,
+    region_parts,
+)
+from allorules.measure.sections import (
+    Loop,
+    area_quantiles,
+    isocontour_loops,
+)
+from allorules.mesh.geometry import face_areas
+from allorules.mesh.topology import face_parts, submesh
+from allorules.spectral.laplacian import lumped_mass
+
+CHEST_LIMIT_MARGIN = 0.01   # heart girth's last candidate: this share of the chest's length behind the forelimbs
+
+
+def torso_axis(body: Body) -> np.ndarray:
+    """Unit vector from the back of the torso to its front.
+
+    ``body.frame.forward`` when the body has a frame; otherwise the torso's (chest and abdomen)
+    area-weighted principal axis, pointing from the abdomen's centroid to the chest's.
+    """
+    if body.frame is not None:
+        forward = np.asarray(body.frame.forward, dtype=float)
+        return forward / np.linalg.norm(forward)
+    if not all(body.has_region(region) for region in TORSO_REGIONS):
+        raise MeasurementError(
+            "the torso's direction is unknown: the body needs both 'chest' and 'abdomen' regions or a "
+            "frame (up/forward) to measure chest girth"
+        )
+    mass = lumped_mass(body.vertices, body.faces)
+    centroids = {}
+    for region in TORSO_REGIONS:
+        mask = body.region_mask(region)
+        centroids[region] = (body.vertices[mask] * mass[mask, None]).sum(axis=0) / mass[mask].sum()
+    mask = body.region_mask("chest") | body.region_mask("abdomen")
+    weights = mass[mask] / mass[mask].sum()
+    centred = body.vertices[mask] - (body.vertices[mask] * weights[:, None]).sum(axis=0)
+    covariance = (centred * weights[:, None]).T @ centred
+    axis = np.linalg.eigh(covariance)[1][:, -1]
+    return axis if axis @ (centroids["chest"] - centroids["abdomen"]) >= 0 else -axis
+
+
+def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,
+                 around_torso: bool = False) -> tuple[list[Loop], np.ndarray]:
+    """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
+
+    Levels at the part's area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``).
+    ``around_torso``: cut the loops at those levels from the whole torso piece around the part
+    (:func:`_torso_piece`) rather than from the part alone. Returns the loops and the quantile of
+    each (levels without a closed loop are left out).
+    """
+    part = region_parts(body, region)[0]
+    field = part.vertices @ axis
+    if targets is None:
+        targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
+    levels = area_quantiles(part.vertices, part.faces, field, targets)
+    cut = _torso_piece(body, region) if around_torso else part
+    cut_field = cut.vertices @ axis
+    loops, kept = [], []
+    for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
+        if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
+            continue
+        found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
+        if found:
+            loops.append(found[0])
+            kept.append(target)
+    return loops, np.asarray(kept)
+
+
+def _torso_piece(body: Body, region: str) -> RegionPart:
+    """The connected piece of the torso (faces mostly chest or abdomen) that holds ``region``'s
+    largest part: what a tape measure goes around when the region's own sections do not close."""
+    cache = measured(body).parts
+    if "torso" not in cache:
+        in_torso = np.zeros(len(body.vertices), dtype=bool)
+        for name in TORSO_REGIONS:
+            if body.has_region(name):
+                in_torso |= body.region_mask(name)
+        faces = body.faces[in_torso[body.faces].sum(axis=1) >= 2]
+        pieces = []
+        for face_index in face_parts(faces):
+            vertices, local_faces, vertex_index = submesh(body.vertices, faces, face_index)
+            pieces.append(RegionPart("torso", vertices, local_faces, vertex_index, float(face_areas(vertices, local_faces).sum())))
+        cache["torso"] = pieces
+    first = region_parts(body, region)[0].vertex_index[0]
+    return next(piece for piece in cache["torso"] if np.isin(first, piece.vertex_index))
+
+
+def _forelimb_limit(body: Body, axis: np.ndarray) -> float | None:
+    """Position along ``axis`` of the rearmost point where the forelimbs meet the chest (``None``
+    without forelimbs): the front end of where heart girth may be taken."""
+    if not (body.has_region("forelimbs") and body.region_mask("forelimbs").any()):
+        return None
+    forelimb_faces = body.faces[body.region_face_mask("forelimbs")]
+    junction = body.vertices[np.intersect1d(np.unique(forelimb_faces), np.flatnonzero(body.region_mask("chest")))]
+    return float((junction @ axis).min() if len(junction) else (body.vertices[body.region_mask("forelimbs")] @ axis).min())
+
+
+def chest_girth(body: Body) -> float:
+    """Heart girth: the largest closed section of the chest across the torso axis behind the forelimbs.
+
+    "Behind the forelimbs" means every point of the section lies at least ``CHEST_LIMIT_MARGIN`` of
+    the chest's length behind (along the torso axis) the rearmost point where the forelimbs meet
+    the body; without forelimbs, any section. The candidates are the sections at fixed area
+    quantiles of the chest that lie behind that limit, plus the section at the limit: where the
+    chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
+    with the forelimbs continuously instead of jumping from one quantile to the next. When no
+    section of the chest alone closes there (its boundary with the abdomen zigzags across the
+    large faces of a low-poly mesh), the same levels are cut around the whole torso. On a carried
+    body (:func:`carry_fields`) the quantile levels, and which of the two, are the reference's.
+    """
+    axis = torso_axis(body)
+    part = region_parts(body, "chest")[0]
+    field = part.vertices @ axis
+    limit = _forelimb_limit(body, axis)
+    if limit is not None:
+        limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
+
+    def candidates(targets: np.ndarray | None, around_torso: bool) -> tuple[list[Loop], np.ndarray]:
+        loops, kept = _torso_loops(body, "chest", axis, targets, around_torso)
+        if limit is not None:
+            # every candidate behind the limit, and the section at the limit itself: so a candidate
+            # crossing the limit leaves or joins where it equals that last section (no jump)
+            loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
+            if field.min() < limit < field.max():
+                cut = _torso_piece(body, "chest") if around_torso else part
+                loops += isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+        return loops, kept
+
+    cache = measured(body)
+    carried = cache.carried.chest_candidates if cache.carried else None
+    if carried is not None:
+        loops, _ = candidates(*carried)
+    else:
+        for around_torso in (False, True):
+            loops, kept = candidates(None, around_torso)
+            if loops:
+                cache.chest_candidates = (kept, around_torso)
+                break
+    if not loops:
+        raise MeasurementError(
+            "no closed section of the chest behind the forelimbs: the chest region does not go all "
+            "around the body there; check the segmentation"
+        )
+    return max(loop.girth for loop in loops)
+
+
+def region_girth(body: Body, region: str) -> float:
+    """Girth of a region, taken where docs/measurements.md says.
+
+    chest: heart girth (:func:`chest_girth`); abdomen: its largest section across the torso
+    axis; limbs: the section at mid-length, mean over the limbs; any other region: the longest
+    closed isocontour of its own Fiedler vector (the base of a neck, the widest part of a head).
+    """
+    cache = measured(body).girths
+    if region in cache:
+        return cache[region]
+    if region == "chest":
+        girth = chest_girth(body)
+    elif region == "abdomen":
+        axis = torso_axis(body)
+        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso=True)[0]
+        if not loops:
+            raise MeasurementError("no closed section across the abdomen; check the segmentation")
+        girth = max(loop.girth for loop in loops)
+    elif region in LIMB_REGIONS:
+        girth = float(np.mean([limb.section_at(0.5).girth for limb in limb_sections(body, region)]))
+    else:
+        girths = []
+        for part_skeleton in region_skeleton(body, region):
+            section_loops = [loop for loop, kind in zip(part_skeleton.loops, part_skeleton.kinds) if kind == "section"]
+            if section_loops:
+                girths.append(max(loop.girth for loop in section_loops))
+        if not girths:
+            raise MeasurementError(f"no closed cross-section found on region {region!r}; check the segmentation")
+        girth = float(np.mean(girths))
+    cache[region] = girth
+    return girth

@@ -1,0 +1,238 @@
+"""Measurements of a body and its regions (METHOD §3): masses, lengths, girths, peak stress.
+
+All quantities are used only as ratios (before/after a scaling step), so density cancels and a
+mass is a volume. The public names the rules engine calls are :func:`body_mass`,
+:func:`region_mass`, :func:`region_length`, :func:`region_girth` and :func:`peak_stress`.
+
+- Volumes: divergence theorem on the surface with every open boundary loop capped by a fan
+  around its centroid (caps exist for measuring only).
+- Cross-sections: closed isocontour loops of a field that runs along the part
+  (:mod:`allorules.sections`): the part's own Fiedler vector for limbs and other regions, planes
+  across the torso axis for the chest and abdomen.
+- Lengths: diameter of the region's skeleton; mean over the parts of a paired region (a pair
+  that comes out as one piece with two feet is split into its legs). Fields and skeletons are
+  taken with the part's holes (holes of the body's surface, not cuts) capped.
+- Peak stress σ = M / A with A the smallest limb cross-section away from the junction and the tip.
+
+Expensive derived things (region parts, fields, sections) are kept in ``body.cache``, which is
+valid only for the body's exact vertices. See docs/measurements.md for the definitions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from allorules.body import Body
+from allorules.errors import MeasurementError
+from allorules.measure.cache import measured
+from allorules.measure.parts import (
+    LIMB_REGIONS,
+    SECTION_COUNT,
+    RegionPart,
+    carry_fields,
+    part_fields,
+    region_parts,
+)
+from allorules.measure.sections import (
+    Loop,
+    area_quantile_levels,
+    boundary_loops,
+    isocontour_loops,
+)
+
+# Share of a limb's area at its far end (the foot: a hoof, a wide sole) that a limb's skeleton
+# does not cut into sections: the field along the leg flattens across a sole, where its
+# isocontours wander and split. The skeleton's tip reaches the foot's far end from the last
+# section before it (sections.end_point).
+FOOT_SHARE = 0.1
+
+
+# ---------------------------------------------------------------------------------------------
+# Volumes
+
+
+# ---------------------------------------------------------------------------------------------
+# Region parts
+
+
+# ---------------------------------------------------------------------------------------------
+# Limbs and cross-sections
+
+
+@dataclass
+class Section:
+    """A cross-section of a limb: a loop, how far along the limb it is, and where it was taken."""
+
+    loop: Loop
+    distance: float   # along the limb's skeleton from the junction
+    fraction: float   # distance / limb length: 0 at the junction, 1 at the tip
+
+    @property
+    def area(self) -> float:
+        return self.loop.area
+
+    @property
+    def girth(self) -> float:
+        return self.loop.girth
+
+
+@dataclass
+class Limb:
+    """One limb (a part of a limb region) cut across from its junction with the body to its tip."""
+
+    region: str
+    part: int
+    sections: list[Section]   # ordered junction → tip
+    junction: np.ndarray      # centroid of the junction (the part's largest open boundary)
+    tip: np.ndarray           # vertex where the field is largest (the foot's tip)
+    length: float             # junction → section centroids → tip
+    field: np.ndarray         # per part vertex, grows from junction to tip
+    levels: np.ndarray        # field level of each section
+    mesh: RegionPart
+    junction_loop: Loop | None = None   # the junction's open boundary (None: the field's lowest vertex)
+
+    @property
+    def centroids(self) -> np.ndarray:
+        """The centroids of the cross-sections, junction to tip, (sections, 3): the leg's centre line."""
+        return np.array([section.loop.centroid for section in self.sections])
+
+    def moved(self, part: RegionPart) -> "Limb":
+        """The same limb (same loops, junction and tip) on a moved copy ``part`` of its mesh."""
+        loops = [section.loop.moved(part.vertices) for section in self.sections]
+        junction_loop = None if self.junction_loop is None else self.junction_loop.moved(part.vertices)
+        junction = part.vertices[int(np.argmin(self.field))] if junction_loop is None else junction_loop.centroid
+        tip = part.vertices[int(np.argmax(self.field))]
+        sections, length = _chain_sections(junction, loops, tip)
+        return Limb(self.region, self.part, sections, junction, tip, length, self.field, self.levels, part, junction_loop)
+
+    def section_at(self, fraction: float) -> Section:
+        """The cross-section at ``fraction`` of the limb's length (0 junction, 1 tip), recomputed exactly."""
+        if not self.sections:
+            raise MeasurementError(f"no closed cross-section found on {self.region!r} part {self.part}")
+        fractions = np.asarray([section.fraction for section in self.sections])
+        fraction = float(np.clip(fraction, fractions[0], fractions[-1]))
+        level = float(np.interp(fraction, fractions, self.levels))
+        loops = isocontour_loops(self.mesh.vertices, self.mesh.faces, self.field, level)
+        if not loops:
+            nearest = int(np.argmin(np.abs(fractions - fraction)))
+            return self.sections[nearest]
+        return Section(loops[0], fraction * self.length, fraction)
+
+
+def _limb(part: RegionPart, index: int, field: np.ndarray) -> Limb:
+    levels = area_quantile_levels(part.vertices, part.faces, field, SECTION_COUNT)
+    loops, kept_levels = [], []
+    for level in levels:
+        found = isocontour_loops(part.vertices, part.faces, field, level)
+        if found:
+            loops.append(found[0])   # the main cross-section (longest loop) at this level
+            kept_levels.append(level)
+    boundaries = boundary_loops(part.vertices, part.faces)
+    tip = part.vertices[int(np.argmax(field))]
+    junction_loop = max(boundaries, key=lambda loop: loop.girth) if boundaries else None
+    junction = part.vertices[int(np.argmin(field))] if junction_loop is None else junction_loop.centroid
+    sections, length = _chain_sections(junction, loops, tip)
+    return Limb(part.region, index, sections, junction, tip, length, field, np.asarray(kept_levels), part, junction_loop)
+
+
+def _chain_sections(junction: np.ndarray, loops: list[Loop], tip: np.ndarray) -> tuple[list[Section], float]:
+    """Sections along the chain junction → loop centroids → tip, and the chain's length."""
+    chain = [junction] + [loop.centroid for loop in loops] + [tip]
+    steps = np.linalg.norm(np.diff(np.asarray(chain), axis=0), axis=1)
+    distances = np.cumsum(steps)
+    length = float(distances[-1])
+    sections = [Section(loop, float(d), float(d / length) if length > 0 else 0.0) for loop, d in zip(loops, distances[:-1])]
+    return sections, length
+
+
+def limb_sections(body: Body, region: str) -> list[Limb]:
+    """The limbs of a region (one per part), each cut into cross-sections from junction to tip.
+
+    The field is the limb's own Fiedler vector (METHOD §3: a global Fiedler vector does not cut
+    legs across), oriented to grow from the junction (the part's largest open boundary) to the
+    tip. One loop per level, the longest where a level has several.
+    """
+    cache = measured(body)
+    if region not in cache.limbs:
+        parts = region_parts(body, region)
+        carried = cache.carried.limbs.get(region) if cache.carried else None
+        if carried is not None:   # the reference's limbs, re-measured on the moved parts
+            cache.limbs[region] = [limb.moved(part) for limb, part in zip(carried, parts)]
+        else:
+            fields = part_fields(body, region)
+            cache.limbs[region] = [_limb(part, index, field) for index, (part, field) in enumerate(zip(parts, fields))]
+    return cache.limbs[region]
+
+
+# ---------------------------------------------------------------------------------------------
+# Posture: how the limbs stand
+
+
+def stance_down(limbs: list[Limb], frame=None) -> np.ndarray:
+    """'Down' for an animal standing on its legs, whatever the mesh's orientation: −``frame.up``
+    when the body has a frame (the labeller's is the normal of the plane the feet stand on),
+    else the direction the legs point, shoulders to feet (the sum of their junction → tip axes;
+    tilted where the legs slant, as a dog's hind legs do)."""
+    down = -np.asarray(frame.up, dtype=float) if frame is not None else np.sum([limb.tip - limb.junction for limb in limbs], axis=0)
+    return down / np.linalg.norm(down)
+
+
+def limb_bend(limb: Limb) -> float:
+    """How far a limb's centre line strays from straight: the largest distance of a section
+    centroid from the line junction → last section's centroid, as a share of that line's length
+    (0 for a straight leg; a uniform scaling or a turn leaves it as it is). The foot tip is left
+    out: it is one vertex, at the toe, and a hoof's toe sits off the leg's line."""
+    if len(limb.sections) < 2:
+        return 0.0
+    centroids = limb.centroids
+    chord = centroids[-1] - limb.junction
+    reach = float(np.linalg.norm(chord))
+    if reach == 0.0:
+        return 0.0
+    offsets = centroids - limb.junction
+    across = offsets - np.outer(offsets @ chord / reach ** 2, chord)
+    return float(np.linalg.norm(across, axis=1).max() / reach)
+
+
+def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
+    """How the limbs' stance and shape changed from ``before`` to ``after`` (same faces and labels).
+
+    Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
+    centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
+    lowest foot, as a share of the leg's length; ``bend``, the change of :func:`limb_bend` (a leg
+    that bows). Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for;
+    the report shows it because an allometric edit can meet every rule yet leave the animal
+    leaning or its legs bent.
+    """
+    limbs_before = [limb for region in LIMB_REGIONS if before.has_region(region) for limb in limb_sections(before, region)]
+    if not limbs_before:
+        return {}
+    carried = carry_fields(before, after.with_vertices(after.vertices))
+    limbs_after = [limb for region in LIMB_REGIONS if carried.has_region(region) for limb in limb_sections(carried, region)]
+
+    down = stance_down(limbs_before, before.frame)
+
+    def stance(limbs: list[Limb]) -> tuple[np.ndarray, np.ndarray]:
+        axes = np.array([limb.tip - limb.junction for limb in limbs])
+        heights = -np.array([limb.tip @ down for limb in limbs])
+        lengths = np.array([limb.length for limb in limbs])
+        return axes, (heights - heights.min()) / lengths
+
+    axes_before, lift_before = stance(limbs_before)
+    axes_after, lift_after = stance(limbs_after)
+    change = {}
+    for index, limb in enumerate(limbs_before):
+        cosine = axes_before[index] @ axes_after[index] / (np.linalg.norm(axes_before[index]) * np.linalg.norm(axes_after[index]))
+        change[f"{limb.region}[{limb.part}]"] = {
+            "tilt_degrees": float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
+            "foot_lift": float(lift_after[index] - lift_before[index]),
+            "bend": limb_bend(limbs_after[index]) - limb_bend(limb),
+        }
+    return change
+
+
+# ---------------------------------------------------------------------------------------------
+# Lengths and girths
+
+

@@ -1,0 +1,574 @@
+"""Cross-sections and skeletons of a mesh from the isocontours of a scalar field (METHOD §3).
+
+A *loop* is a closed polyline where a piecewise-linear per-vertex field crosses a level
+(marching triangles). Its length is a girth, ‖½ Σ p_k × p_{k+1}‖ its cross-sectional area and
+its centroid a skeleton node. Sweeping the level gives a stack of loops; loops at neighbouring
+levels that touch the same connected band of surface between the two levels are joined, which
+makes the *skeleton* graph, whose diameter (longest shortest path) is a length.
+
+Everything here is a plain function of vertex, face and field arrays; :mod:`allorules.measures`
+applies them to the regions of a :class:`~allorules.body.Body`. The usual field is the Fiedler
+vector h₁ of the harmonic basis (:func:`fiedler_vector`), which runs along elongated shapes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg
+
+from allorules.mesh.topology import directed_edges, face_adjacency
+from allorules.spectral.eigen import few_smallest_eigenpairs
+from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+
+# Meshes up to this many vertices use the reference (dense) eigensolver for h₁.
+
+# ---------------------------------------------------------------------------------------------
+# Loops
+
+
+@dataclass
+class Loop:
+    """A polyline on the surface, closed unless ``closed`` is False.
+
+    ``points[k]`` lies on an edge of the mesh; the segment from ``points[k]`` to
+    ``points[k+1]`` (and, when closed, from the last back to the first) crosses ``faces[k]``.
+    """
+
+    points: np.ndarray            # (k, 3)
+    faces: np.ndarray             # (k,) for a closed loop, (k-1,) for an open chain
+    level: float = float("nan")   # the field value it is an isocontour of (nan: a mesh boundary)
+    closed: bool = True
+    vertex_ids: np.ndarray | None = None   # for a mesh boundary: the mesh vertex of each point
+    # For an isocontour: the mesh edge (two vertex ids) each point lies on and where along it,
+    # points[k] = v[edges[k, 0]] + weights[k] · (v[edges[k, 1]] − v[edges[k, 0]]).
+    edges: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    def moved(self, vertices: np.ndarray) -> "Loop":
+        """The same material loop on the mesh with new ``vertices`` (same faces, same edges).
+
+        An isocontour of a field carried unchanged to the moved mesh crosses the same edges at
+        the same place along them, so its points are a linear interpolation, no re-extraction.
+        """
+        if self.vertex_ids is not None:
+            points = vertices[self.vertex_ids]
+        elif self.edges is not None:
+            start = vertices[self.edges[:, 0]]
+            points = start + self.weights[:, None] * (vertices[self.edges[:, 1]] - start)
+        else:
+            raise ValueError("this loop does not know the mesh edges it lies on")
+        return Loop(points, self.faces, self.level, self.closed, self.vertex_ids, self.edges, self.weights)
+
+    def _segments(self) -> tuple[np.ndarray, np.ndarray]:
+        following = np.roll(self.points, -1, axis=0) if self.closed else self.points[1:]
+        start = self.points if self.closed else self.points[:-1]
+        return start, following
+
+    @property
+    def girth(self) -> float:
+        """Length of the polyline (the closing segment included when closed)."""
+        start, following = self._segments()
+        return float(np.linalg.norm(following - start, axis=1).sum())
+
+    @property
+    def vector_area(self) -> np.ndarray:
+        """½ Σ p_k × p_{k+1}: normal times enclosed area; independent of the origin when closed."""
+        start, following = self._segments()
+        origin = self.points.mean(axis=0)   # exact for a closed loop, steadier in floating point
+        return 0.5 * np.cross(start - origin, following - origin).sum(axis=0)
+
+    @property
+    def area(self) -> float:
+        """Cross-sectional area ‖½ Σ p_k × p_{k+1}‖ (METHOD §3)."""
+        return float(np.linalg.norm(self.vector_area))
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """Length-weighted centroid of the polyline (does not depend on how densely it is sampled)."""
+        start, following = self._segments()
+        lengths = np.linalg.norm(following - start, axis=1)
+        if lengths.sum() <= 0:
+            return self.points.mean(axis=0)
+        return ((start + following) * 0.5 * lengths[:, None]).sum(axis=0) / lengths.sum()
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal of the loop's plane of best fit (direction of the vector area)."""
+        vector = self.vector_area
+        norm = np.linalg.norm(vector)
+        return vector / norm if norm > 0 else vector
+
+
+def _chain(neighbours: np.ndarray) -> list[tuple[np.ndarray, bool]]:
+    """Order the nodes of a graph of maximum degree two into chains.
+
+    ``neighbours[i]`` holds node i's (at most two) neighbours, -1 for none. Returns one
+    ``(node order, closed)`` per connected component.
+    """
+    count = len(neighbours)
+    visited = np.zeros(count, dtype=bool)
+    degree = (neighbours >= 0).sum(axis=1)
+    table = neighbours.tolist()
+    chains = []
+    # Open chains first, from an end (degree ≤ 1); then what is left is closed cycles.
+    starts = list(np.flatnonzero(degree <= 1)) + list(range(count))
+    for start in starts:
+        if visited[start]:
+            continue
+        order = [start]
+        visited[start] = True
+        previous, current = -1, start
+        closed = False
+        while True:
+            a, b = table[current]
+            step = a if a != previous and a >= 0 else (b if b != previous and b >= 0 else -1)
+            if step == a and a == b and a >= 0:   # two-node cycle walked both ways
+                step = -1
+            if step < 0:
+                break
+            if visited[step]:
+                closed = step == start and len(order) > 2
+                break
+            order.append(step)
+            visited[step] = True
+            previous, current = current, step
+        chains.append((np.asarray(order, dtype=np.int64), closed))
+    return chains
+
+
+def isocontour_loops(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    field: np.ndarray,
+    level: float,
+    *,
+    keep_open: bool = False,
+) -> list[Loop]:
+    """The polylines where the piecewise-linear ``field`` equals ``level`` (marching triangles).
+
+    A vertex counts as above the level when ``field ≥ level`` (so a level through a vertex is
+    handled consistently). Each face with vertices on both sides contributes one segment between
+    the crossing points on its two crossed edges; segments sharing an edge are chained. Chains
+    that end at the mesh boundary (or at a non-manifold edge) are open: they are dropped unless
+    ``keep_open``. Returns loops longest first.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    field = np.asarray(field, dtype=np.float64)
+    above = field[faces] >= level                       # (f, 3)
+    count_above = above.sum(axis=1)
+    crossing = np.flatnonzero((count_above == 1) | (count_above == 2))
+    if len(crossing) == 0:
+        return []
+    corners = faces[crossing]
+    side = above[crossing]
+    # Edge k of a face joins corner k and corner k+1; exactly two of the three are crossed.
+    edge_a = corners
+    edge_b = np.roll(corners, -1, axis=1)
+    crossed = side != np.roll(side, -1, axis=1)          # (c, 3), two True per row
+    rows, edge_slot = np.nonzero(crossed)
+    a = edge_a[rows, edge_slot]
+    b = edge_b[rows, edge_slot]
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    keys = low * len(vertices) + high
+    unique_keys, node_of = np.unique(keys, return_inverse=True)
+    node_of = node_of.reshape(-1, 2)                     # the two crossing nodes of each face
+    node_low = unique_keys // len(vertices)
+    node_high = unique_keys % len(vertices)
+    # Crossing point on edge (p, q): p + t (q − p), t = (level − f_p) / (f_q − f_p).
+    f_low, f_high = field[node_low], field[node_high]
+    t = np.clip((level - f_low) / (f_high - f_low), 0.0, 1.0)
+    points = vertices[node_low] + t[:, None] * (vertices[node_high] - vertices[node_low])
+
+    # Each node (a mesh edge) touches at most two crossing faces on a manifold mesh.
+    node_count = len(unique_keys)
+    incidence_node = node_of.ravel()
+    uses = np.bincount(incidence_node, minlength=node_count)
+    usable = uses[incidence_node] <= 2                   # a non-manifold edge breaks the chain
+    segment_ok = usable.reshape(-1, 2).all(axis=1)
+    neighbours = np.full((node_count, 2), -1, dtype=np.int64)
+    segment_face = {}
+    fill = np.zeros(node_count, dtype=np.int64)
+    for (p, q), local_face in zip(node_of[segment_ok].tolist(), np.flatnonzero(segment_ok).tolist()):
+        neighbours[p, fill[p]] = q
+        fill[p] += 1
+        neighbours[q, fill[q]] = p
+        fill[q] += 1
+        segment_face[(min(p, q), max(p, q))] = crossing[local_face]
+    loops = []
+    for order, closed in _chain(neighbours):
+        if len(order) < 2 or (not closed and not keep_open):
+            continue
+        pairs = zip(order.tolist(), np.roll(order, -1).tolist() if closed else order[1:].tolist())
+        crossed_faces = np.asarray([segment_face[(min(p, q), max(p, q))] for p, q in pairs], dtype=np.int64)
+        edges = np.column_stack([node_low[order], node_high[order]])
+        loops.append(Loop(points[order], crossed_faces, float(level), closed, None, edges, t[order]))
+    loops.sort(key=lambda loop: -loop.girth)
+    return loops
+
+
+def boundary_loops(vertices: np.ndarray, faces: np.ndarray) -> list[Loop]:
+    """The open boundary of a mesh as ordered closed loops (``faces`` = the face of each edge)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = directed_edges(faces)
+    face_of = np.tile(np.arange(len(faces)), 3)
+    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    on_boundary = counts[inverse.ravel()] == 1
+    edges, edge_faces = directed[on_boundary], face_of[on_boundary]
+    if len(edges) == 0:
+        return []
+    nodes, local = np.unique(edges, return_inverse=True)
+    local = local.reshape(-1, 2)
+    neighbours = np.full((len(nodes), 2), -1, dtype=np.int64)
+    fill = np.zeros(len(nodes), dtype=np.int64)
+    face_of_edge = {}
+    for (p, q), face in zip(local.tolist(), edge_faces.tolist()):
+        for x, y in ((p, q), (q, p)):
+            if fill[x] < 2:
+                neighbours[x, fill[x]] = y
+                fill[x] += 1
+        face_of_edge[(min(p, q), max(p, q))] = face
+    loops = []
+    for order, closed in _chain(neighbours):
+        if len(order) < 3:
+            continue
+        following = np.roll(order, -1) if closed else order[1:]
+        crossed = [face_of_edge.get((min(p, q), max(p, q)), -1) for p, q in zip(order.tolist(), following.tolist())]
+        loops.append(Loop(vertices[nodes[order]], np.asarray(crossed, dtype=np.int64), float("nan"), closed, nodes[order]))
+    return loops
+
+
+# ---------------------------------------------------------------------------------------------
+# Fields and mesh parts
+
+
+def fiedler_vector(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """h₁, the first non-constant eigenvector of L h = λ D h (METHOD §2), on a connected mesh.
+
+    Its sign is fixed by the eigensolver (largest-magnitude entry positive); callers that need a
+    direction (junction → tip) orient it themselves.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    _, vectors = few_smallest_eigenpairs(cotangent_laplacian(vertices, faces), lumped_mass(vertices, faces), 2)
+    return vectors[:, 1]
+
+
+def harmonic_field(vertices: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The harmonic function (L u = 0) that is 0 on the vertices ``low`` and 1 on ``high``.
+
+    With the two openings of a tube as ``low`` and ``high``, its isocontours are cross-sections
+    of the tube whatever its proportions (a Fiedler vector runs around a tube shorter than about
+    π × its radius). Other boundaries keep the natural (Neumann) condition.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    stiffness = cotangent_laplacian(vertices, np.asarray(faces, dtype=np.int64)).tocsr()
+    values = np.full(len(vertices), np.nan)
+    values[np.asarray(low)] = 0.0
+    values[np.asarray(high)] = 1.0
+    fixed = ~np.isnan(values)
+    free = np.flatnonzero(~fixed)
+    if len(free):
+        # L_ff u_f = −L_fc u_c
+        right = -stiffness[free][:, np.flatnonzero(fixed)] @ values[fixed]
+        values[free] = scipy.sparse.linalg.spsolve(stiffness[free][:, free].tocsc(), right)
+    # Maximum principle: a harmonic function lies between its boundary values. Round-off (which
+    # depends on where the mesh sits in space) can put a free vertex a few ulps outside [0, 1];
+    # clipping keeps the openings the field's exact extremes (see area_quantile_levels).
+    return np.clip(values, 0.0, 1.0)
+
+
+def area_quantiles(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The field's values below which the given shares ``targets`` (0…1) of the area lie (vertex-area weights)."""
+    mass = lumped_mass(vertices, faces)
+    order = np.argsort(field)
+    cumulative = np.cumsum(mass[order])
+    cumulative /= cumulative[-1]
+    return np.interp(np.asarray(targets, dtype=np.float64), cumulative, field[order])
+
+
+def area_quantile_levels(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, count: int) -> np.ndarray:
+    """``count`` levels at the (k + ½)/count quantiles of the field, weighted by vertex area.
+
+    On a tube of constant radius, area is proportional to length, so the levels are about evenly
+    spaced along it whatever the shape of the field's profile (a Fiedler vector is flat near the
+    ends of a tube; evenly spaced *values* would crowd the middle).
+    """
+    targets = (np.arange(count) + 0.5) / count
+    levels = np.unique(area_quantiles(vertices, faces, field, targets))
+    # A level at the field's minimum or maximum is not a cross-section: at the minimum nothing
+    # is below it, at the maximum its "contour" is the set where the maximum is attained. For a
+    # harmonic field that set is a whole opening (a plateau of vertices at exactly 0 or 1, which
+    # the quantiles land on when the opening holds more than 1/(2·count) of the area), and which
+    # spurious loops round-off then draws around it depended on the mesh's place in space.
+    return levels[(levels > field.min()) & (levels < field.max())]
+
+
+# ---------------------------------------------------------------------------------------------
+# Skeleton
+
+
+@dataclass
+class Skeleton:
+    """Skeleton graph: nodes are points, edges weighted by the distance between them.
+
+    ``kinds[i]`` is ``"section"`` (centroid of ``loops[i]``, an isocontour), ``"boundary"``
+    (centroid of ``loops[i]``, an open boundary of the mesh) or ``"tip"`` (the end of a limb,
+    where isocontours shrink to a point: :func:`end_point` beyond the last loop, ``tip_anchors[i]``,
+    as far as the surface beyond it, ``tip_regions[i]``, reaches along the part (from the loop at
+    a quarter of the levels back, ``tip_bases[i]``); without such a loop, the vertex
+    ``tip_vertices[i]`` where the field is extreme).
+    """
+
+    points: np.ndarray                   # (N, 3)
+    graph: sparse.csr_matrix             # (N, N) symmetric, weights = distances
+    kinds: list[str]
+    loops: list[Loop | None]
+    levels: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0))
+    tip_vertices: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # mesh vertex per node, −1 if not a tip
+    tip_anchors: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # per node: the loop node a tip lies beyond, −1 if none
+    tip_regions: list[np.ndarray | None] = dataclass_field(default_factory=list)                    # per node: a tip's end-band vertices
+    tip_bases: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))     # per node: the loop a tip's direction is taken from, −1 if none
+
+    @property
+    def diameter(self) -> float:
+        return skeleton_diameter(self.graph)
+
+    def moved(self, vertices: np.ndarray) -> "Skeleton":
+        """The same skeleton (same loops, tips and joins) on the mesh with new ``vertices``.
+
+        For a field carried unchanged to a moved mesh: every loop crosses the same edges
+        (:meth:`Loop.moved`), tips are the same vertices, and the graph keeps its edges with
+        weights re-measured, so the diameter is a continuous function of the vertices.
+        """
+        vertices = np.asarray(vertices, dtype=np.float64)
+        loops = [None if loop is None else loop.moved(vertices) for loop in self.loops]
+        points = []
+        for node, loop in enumerate(loops):
+            if loop is not None:
+                points.append(loop.centroid)
+            elif self.tip_anchors[node] >= 0:
+                base = self.tip_bases[node]
+                points.append(end_point(vertices, loops[self.tip_anchors[node]], self.tip_regions[node],
+                                        None if base < 0 else loops[base]))
+            else:
+                points.append(vertices[self.tip_vertices[node]])
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        graph = sparse.triu(self.graph, k=1).tocoo()
+        weights = np.maximum(np.linalg.norm(points[graph.row] - points[graph.col], axis=1), 1e-300)
+        upper = sparse.coo_matrix((weights, (graph.row, graph.col)), shape=self.graph.shape)
+        return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices,
+                        self.tip_anchors, self.tip_regions, self.tip_bases)
+
+
+def end_point(vertices: np.ndarray, anchor: Loop, end_vertices: np.ndarray, base: Loop | None = None) -> np.ndarray:
+    """Where a part ends beyond its last cross-section ``anchor``: as far out as the surface beyond
+    it (``end_vertices``) reaches along the part.
+
+    p = c + n · max_v (v − c)·n, with c the loop's centroid and n the end's direction: from the
+    centroid of ``base`` (a loop some way back from the end) to c, or without one the loop's unit
+    normal; either way pointing to the end (to the side where the end vertices lie on the whole).
+    A maximum of continuous functions of the vertices, so it does not jump when a neighbouring
+    vertex becomes the extreme one (the field's extreme vertex, on a blunt toe or a flat sole,
+    does); and it measures how far the end reaches along the part, not across it (the extreme
+    vertex may sit on the rim of a wide sole). A chord over several loops rather than the last
+    loop's normal: the tilt of one loop across an angled hoof moved the end by a few per cent of
+    its width.
+    """
+    centre, normal = anchor.centroid, anchor.normal
+    if base is not None:
+        direction = centre - base.centroid
+        if np.linalg.norm(direction) > 0:
+            normal = direction / np.linalg.norm(direction)
+    offsets = (np.asarray(vertices)[np.asarray(end_vertices)] - centre) @ normal
+    if offsets.sum() < 0:
+        normal, offsets = -normal, -offsets
+    return centre + max(float(offsets.max(initial=0.0)), 0.0) * normal
+
+
+def skeleton_longest_path(graph: sparse.spmatrix) -> tuple[float, list[int]]:
+    """The longest of all shortest paths in a weighted undirected graph: (length, node path)."""
+    if graph.shape[0] == 0:
+        return 0.0, []
+    distances, predecessors = csgraph.shortest_path(graph, directed=False, return_predecessors=True)
+    distances[~np.isfinite(distances)] = -1.0
+    start, end = np.unravel_index(int(np.argmax(distances)), distances.shape)
+    length = float(max(distances[start, end], 0.0))
+    path = [int(end)]
+    while path[-1] != start and predecessors[start, path[-1]] >= 0:
+        path.append(int(predecessors[start, path[-1]]))
+    return length, path[::-1]
+
+
+def skeleton_diameter(graph: sparse.spmatrix) -> float:
+    """Diameter of a skeleton graph: its longest shortest path (METHOD §3)."""
+    return skeleton_longest_path(graph)[0]
+
+
+def skeleton(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    field: np.ndarray,
+    levels: np.ndarray | None = None,
+    *,
+    count: int = 40,
+    by_level: bool = False,
+) -> Skeleton:
+    """Skeleton of a mesh from the isocontours of ``field`` at ``levels``.
+
+    Levels default to ``count`` area quantiles of the field (:func:`area_quantile_levels`). The
+    surface between two consecutive levels (and below the first, above the last) is a set of
+    *bands*: connected components of the faces whose field range meets that interval. Nodes:
+    every closed isocontour loop (its centroid); every open boundary loop of the mesh (its
+    centroid); in each band below the first or above the last level that holds no boundary, the
+    end point beyond the outermost loop (a tip, :func:`end_point`). Nodes that touch the same band
+    part are joined: every two of them, or with ``by_level`` in the order of their field value (a
+    loop's level, a boundary's mean value, a tip beyond every loop), each level's nodes to the
+    next level's, so that the skeleton runs through every loop rather than skipping some where a
+    face happens to span two levels. By level is steadier where the loops are well sampled (a
+    limb); on a coarse part the path through every loop zigzags and every-two is steadier.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    field = np.asarray(field, dtype=np.float64)
+    if levels is None:
+        levels = area_quantile_levels(vertices, faces, field, count)
+    levels = np.sort(np.asarray(levels, dtype=np.float64))
+    adjacency = face_adjacency(faces)
+    face_low = field[faces].min(axis=1)
+    face_high = field[faces].max(axis=1)
+
+    points: list[np.ndarray] = []
+    kinds: list[str] = []
+    node_loops: list[Loop | None] = []
+    tip_vertices: list[int] = []
+    tip_anchors: list[int] = []
+    tip_regions: list[np.ndarray | None] = []
+    tip_bases: list[int] = []
+    node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
+    for level in levels:
+        for loop in isocontour_loops(vertices, faces, field, level):
+            points.append(loop.centroid)
+            kinds.append("section")
+            node_loops.append(loop)
+            node_faces.append(loop.faces)
+            tip_vertices.append(-1)
+            tip_anchors.append(-1)
+            tip_regions.append(None)
+            tip_bases.append(-1)
+    for loop in boundary_loops(vertices, faces):
+        points.append(loop.centroid)
+        kinds.append("boundary")
+        node_loops.append(loop)
+        node_faces.append(loop.faces[loop.faces >= 0])
+        tip_vertices.append(-1)
+        tip_anchors.append(-1)
+        tip_regions.append(None)
+        tip_bases.append(-1)
+
+    # Field value of each node so far: a loop's level; an open boundary's mean value. A tip lies
+    # beyond every loop of its end band (tip_value).
+    node_values = [loop.level if kind == "section" else float(field[loop.vertex_ids].mean())
+                   for loop, kind in zip(node_loops, kinds)]
+
+    def tip_value(band: int) -> float:
+        return -np.inf if band == 0 else np.inf
+
+    edges: set[tuple[int, int]] = set()
+    bounds = np.concatenate([[-np.inf], levels, [np.inf]])
+    face_nodes: dict[int, list[int]] = {}
+    for node, touched in enumerate(node_faces):
+        for face in touched.tolist():
+            face_nodes.setdefault(face, []).append(node)
+    for band in range(len(bounds) - 1):
+        lower, upper = bounds[band], bounds[band + 1]
+        # Faces whose field range [low, high] meets [lower, upper] (upper excluded: field ≥ level is above).
+        in_band = np.flatnonzero((face_high >= lower) & (face_low < upper))
+        if len(in_band) == 0:
+            continue
+        sub = adjacency[in_band][:, in_band]
+        component_count, component = csgraph.connected_components(sub, directed=False)
+        members: dict[int, set[int]] = {}
+        for local, face in enumerate(in_band.tolist()):
+            for node in face_nodes.get(face, ()):
+                members.setdefault(int(component[local]), set()).add(node)
+        end_band = band == 0 or band == len(bounds) - 2
+        if end_band:
+            # A tip in each end band part that is not closed off by a boundary: the end point
+            # beyond the part's outermost loop (the longest, if the end level has several), or,
+            # without one, the vertex where the field is extreme.
+            end_level = levels[0] if band == 0 else levels[-1]
+            for part in range(component_count):
+                part_nodes = members.get(part, set())
+                if any(kinds[node] == "boundary" for node in part_nodes):
+                    continue
+                part_vertices = np.unique(faces[in_band[component == part]])
+                values = field[part_vertices]
+                tip = part_vertices[np.argmin(values) if band == 0 else np.argmax(values)]
+                outermost = [node for node in part_nodes if node_loops[node] is not None and kinds[node] == "section"
+                             and node_loops[node].level == end_level]
+                if outermost:
+                    anchor = max(outermost, key=lambda node: node_loops[node].girth)
+                    beyond = part_vertices[values <= end_level] if band == 0 else part_vertices[values >= end_level]
+                    # the loop a quarter of the levels back from this end (the nearest closed one
+                    # towards it; the longest where a level has several): the end's direction
+                    back = max(1, len(levels) // 4)
+                    base_level = levels[back] if band == 0 else levels[-1 - back]
+                    sections = [node for node, kind in enumerate(kinds) if kind == "section"
+                                and (base_level <= node_loops[node].level <= end_level if band else
+                                     end_level <= node_loops[node].level <= base_level)]
+                    nearest = (max if band == 0 else min)(node_loops[node].level for node in sections)
+                    base = max((node for node in sections if node_loops[node].level == nearest),
+                               key=lambda node: node_loops[node].girth)
+                    base = -1 if base == anchor else base
+                    points.append(end_point(vertices, node_loops[anchor], beyond, None if base < 0 else node_loops[base]))
+                    tip_anchors.append(anchor)
+                    tip_regions.append(beyond)
+                    tip_bases.append(base)
+                else:
+                    points.append(vertices[tip])
+                    tip_anchors.append(-1)
+                    tip_regions.append(None)
+                    tip_bases.append(-1)
+                kinds.append("tip")
+                node_loops.append(None)
+                tip_vertices.append(int(tip))
+                members.setdefault(part, set()).add(len(points) - 1)
+        for part_nodes in members.values():
+            # by_level: join the nodes of a band part in the order of their field value, each
+            # group (one level) to the next, so that a loop touching the band only through a
+            # face spanning two levels is not a shortcut past the loops between them (such faces
+            # come and go as the levels slide over the vertices' values, and the shortcuts with
+            # them). Otherwise every two nodes of a band part are joined.
+            if not by_level:
+                ordered = sorted(part_nodes)
+                for i, p in enumerate(ordered):
+                    for q in ordered[i + 1:]:
+                        edges.add((p, q))
+                continue
+            groups: dict[float, list[int]] = {}
+            for node in part_nodes:
+                groups.setdefault(node_values[node] if node < len(node_values) else tip_value(band), []).append(node)
+            ordered_groups = [groups[value] for value in sorted(groups)]
+            for lower_group, upper_group in zip(ordered_groups, ordered_groups[1:]):
+                for p in lower_group:
+                    for q in upper_group:
+                        edges.add((min(p, q), max(p, q)))
+
+    point_array = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if edges:
+        pairs = np.asarray(sorted(edges), dtype=np.int64)
+        weights = np.linalg.norm(point_array[pairs[:, 0]] - point_array[pairs[:, 1]], axis=1)
+        # A zero-length edge would vanish from a sparse matrix; keep it as a tiny positive weight.
+        weights = np.maximum(weights, 1e-300)
+        graph = sparse.coo_matrix((weights, (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+        graph = (graph + graph.T).tocsr()
+    else:
+        graph = sparse.csr_matrix((len(points), len(points)))
+    return Skeleton(point_array, graph, kinds, node_loops, levels, np.asarray(tip_vertices, dtype=np.int64),
+                    np.asarray(tip_anchors, dtype=np.int64), tip_regions, np.asarray(tip_bases, dtype=np.int64))

@@ -1,0 +1,94 @@
+"""Geometry of triangle meshes as plain numpy: areas, normals, enclosed volume, flipped faces,
+plane sections.
+
+One home for each of these operations; every stage (repair, the Laplacian, measurement, export,
+the generated quadruped) calls them from here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area of each triangle."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals: n_i ∝ Σ_{faces f ∋ i} (b − a) × (c − a).
+
+    A vertex with no (non-degenerate) face gets (0, 0, 1) rather than NaN.
+    """
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    corner = vertices[faces]
+    face_normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])  # 2·area·n
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_normal)
+    length = np.linalg.norm(normals, axis=1)
+    good = length > 0
+    normals[good] /= length[good, None]
+    normals[~good] = (0.0, 0.0, 1.0)
+    return normals
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalised face normals (b − a) × (c − a)."""
+    corner = np.asarray(vertices)[faces]
+    return np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+
+
+def count_flipped_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
+    """Faces whose normal turned by more than 90° (n_before · n_after ≤ 0 on a non-degenerate face)."""
+    normal_before, normal_after = face_normals(before, faces), face_normals(after, faces)
+    dot = np.einsum("ij,ij->i", normal_before, normal_after)
+    return int(np.sum(dot <= 0))
+
+
+def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume enclosed by a closed, outward-oriented triangle surface.
+
+    Divergence theorem (Mirtich 1996): V = Σ_faces a · (b × c) / 6, taken about the vertex
+    mean so that round-off does not grow with the distance from the origin.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return 0.0
+    centred = vertices - vertices[faces.ravel()].mean(axis=0)     # any centre: the surface is closed
+    a, b, c = (centred[faces[:, k]] for k in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def plane_section(vertices: np.ndarray, faces: np.ndarray, point: np.ndarray,
+                  normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Segments where a closed mesh crosses a plane, oriented counter-clockwise about ``normal``.
+
+    Returns (starts, ends, crossed): (k, 3) each, and the index of the face each segment lies on.
+    A segment on a face with outward normal n is oriented along normal × n, so the segments of
+    each loop run around the solid's section consistently.
+    """
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    s = (vertices - point) @ normal
+    sf = s[faces]
+    above = sf > 0
+    crossing = above.any(axis=1) & ~above.all(axis=1)
+    crossed = np.flatnonzero(crossing)
+    tri = vertices[faces[crossed]]
+    st = sf[crossing]
+    points = []
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        crosses = (st[:, i] > 0) != (st[:, j] > 0)
+        t = np.where(crosses, st[:, i] / np.where(crosses, st[:, i] - st[:, j], 1.0), np.nan)
+        points.append(tri[:, i] + (tri[:, j] - tri[:, i]) * t[:, None])
+    points = np.stack(points, axis=1)                      # (k, 3 edges, 3), two of them finite
+    valid = np.isfinite(points[:, :, 0])
+    order = np.argsort(~valid, axis=1, kind="stable")[:, :2]
+    rows = np.arange(len(points))[:, None]
+    pair = points[rows, order]
+    start, end = pair[:, 0], pair[:, 1]
+    flip = np.einsum("ij,ij->i", end - start, np.cross(normal, face_normals(vertices, faces[crossed]))) < 0
+    start, end = np.where(flip[:, None], end, start), np.where(flip[:, None], start, end)
+    return start, end, crossed

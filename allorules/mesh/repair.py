@@ -1,0 +1,313 @@
+"""Mesh preparation: from whatever file the user has to a body the method can work on (METHOD §1).
+
+:func:`load_mesh` reads any format trimesh reads. :func:`prepare_mesh` repairs it in one reusable
+step and says what it changed: merge duplicate (seam) vertices, drop unreferenced vertices,
+degenerate, duplicate and non-manifold faces, orient faces consistently and outward, keep the
+largest connected part as the body and carry the small detached parts (eyes, teeth) along by the
+displacement of their nearest body vertex, optionally decimate above a vertex limit.
+:func:`cap_holes` closes boundary loops for volume measurement only; output meshes keep their holes.
+
+The :class:`PreparedMesh` remembers how every vertex of the input maps to the body, so that a
+scaled body can be written back in the input's own topology (with its UVs and materials).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
+from scipy.spatial import cKDTree
+
+from allorules.errors import MeshError
+from allorules.mesh.decimate import decimate
+from allorules.mesh.geometry import enclosed_volume, face_areas
+from allorules.mesh.load import load_mesh
+from allorules.mesh.topology import (
+    cap_holes,
+    corner_edges,
+    count_boundary_loops,
+    directed_edges,
+    face_components,
+)
+
+log = logging.getLogger(__name__)
+
+MINIMUM_BODY_VERTICES = 100
+# Vertices closer than this fraction of the bounding-box diagonal are the same point (seams).
+MERGE_TOLERANCE = 1e-7
+
+
+@dataclass
+class DetachedPart:
+    """A small part carried along with the body: ``source_vertices`` move with ``anchors``."""
+
+    source_vertices: np.ndarray   # indices into the input's vertices
+    anchors: np.ndarray           # for each, the nearest body vertex
+
+
+@dataclass
+class PreparedMesh:
+    """The repaired body and how it relates to the input.
+
+    ``source_vertex_index[k]`` is the body vertex that input vertex ``k`` became, or -1 when the
+    input vertex is not part of the body (a detached part's vertex, or an unreferenced one).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    repairs: list[str]
+    source: "object | None" = None          # the trimesh.Trimesh as loaded, for export
+    source_path: Path | None = None
+    source_vertex_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    detached: list[DetachedPart] = field(default_factory=list)
+    boundary_loops: int = 0
+
+    def source_positions(self, body_vertices: np.ndarray) -> np.ndarray:
+        """Positions for every input vertex after the body moved to ``body_vertices``.
+
+        Body vertices take their new place; detached parts move rigidly with the displacement of
+        their nearest body vertex; unreferenced input vertices stay where they were.
+        """
+        if self.source is None:
+            return np.asarray(body_vertices, dtype=float).copy()
+        original = np.asarray(self.source.vertices, dtype=float)
+        positions = original.copy()
+        in_body = self.source_vertex_index >= 0
+        positions[in_body] = body_vertices[self.source_vertex_index[in_body]]
+        displacement = np.asarray(body_vertices, dtype=float) - self.vertices
+        for part in self.detached:
+            positions[part.source_vertices] = original[part.source_vertices] + displacement[part.anchors]
+        return positions
+
+
+def prepare_mesh(mesh, *, max_vertices: int | None = None) -> PreparedMesh:
+    """Repair a mesh (a path or a ``trimesh.Trimesh``) into a body; see the module docstring.
+
+    Raises :class:`MeshError` for an empty mesh, one without faces, non-finite coordinates or a
+    body too small to work with.
+    """
+    source_path = None
+    if isinstance(mesh, (str, Path)):
+        source_path = Path(mesh)
+        mesh = load_mesh(source_path)
+    name = str(source_path) if source_path else "mesh"
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3) if len(mesh.faces) else np.zeros((0, 3), np.int64)
+    if len(vertices) == 0:
+        raise MeshError(f"{name}: the mesh is empty (no vertices)")
+    if len(faces) == 0:
+        raise MeshError(f"{name}: the mesh has no faces (a point cloud?); export it as a triangle mesh")
+    bad = ~np.all(np.isfinite(vertices), axis=1)
+    if bad.any():
+        raise MeshError(
+            f"{name}: {int(bad.sum())} vertices have NaN or infinite coordinates; "
+            "remove or fix them in your modelling tool"
+        )
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshError(f"{name}: faces refer to vertices that do not exist")
+
+    repairs: list[str] = []
+    source_count = len(vertices)
+
+    # 1. Merge duplicate vertices (UV and normal seams split one surface into many parts).
+    merged_index, vertices = _merge_close_vertices(vertices)
+    faces = merged_index[faces]
+    if len(vertices) < source_count:
+        repairs.append(f"merged {source_count - len(vertices)} duplicate vertices (seams)")
+
+    # 2. Drop degenerate, duplicate and non-manifold faces.
+    faces, dropped = _drop_degenerate_faces(vertices, faces)
+    if dropped:
+        repairs.append(f"dropped {dropped} degenerate faces")
+    faces, dropped = _drop_duplicate_faces(faces)
+    if dropped:
+        repairs.append(f"dropped {dropped} duplicate faces")
+    faces, dropped = _drop_non_manifold_faces(faces)
+    if dropped:
+        repairs.append(f"dropped {dropped} faces on non-manifold edges")
+    if len(faces) == 0:
+        raise MeshError(f"{name}: no usable faces remain after removing degenerate ones")
+
+    # 3. Keep the largest connected part (by area) as the body.
+    component = face_components(faces)
+    areas = face_areas(vertices, faces)
+    part_area = np.bincount(component, weights=areas)
+    body_part = int(np.argmax(part_area))
+    in_body_face = component == body_part
+    if len(part_area) > 1:
+        share = part_area[body_part] / part_area.sum()
+        repairs.append(
+            f"kept the largest of {len(part_area)} parts as the body ({share:.0%} of the surface); "
+            f"{len(part_area) - 1} small parts are carried along"
+        )
+        if share < 0.8:
+            log.warning(
+                "%s: the largest part holds only %.0f%% of the surface; if the body is split into "
+                "pieces, join them in your modelling tool", name, 100 * share,
+            )
+    body_faces = faces[in_body_face]
+
+    # 4. Drop unreferenced vertices (renumber the body's vertices).
+    used = np.unique(body_faces)
+    renumber = -np.ones(len(vertices), dtype=np.int64)
+    renumber[used] = np.arange(len(used))
+    unreferenced = len(vertices) - len(np.unique(faces))
+    if unreferenced:
+        repairs.append(f"dropped {unreferenced} unreferenced vertices")
+    body_vertices = vertices[used]
+    body_faces = renumber[body_faces]
+    if len(body_vertices) < MINIMUM_BODY_VERTICES:
+        raise MeshError(
+            f"{name}: the body has only {len(body_vertices)} vertices; allorules needs at least "
+            f"{MINIMUM_BODY_VERTICES}: subdivide the mesh (e.g. Blender's Subdivision Surface) and try again"
+        )
+
+    # 5. Orient faces consistently, then outward (positive enclosed volume after capping).
+    body_faces, flipped = _orient_consistently(body_faces)
+    if flipped:
+        repairs.append(f"flipped {flipped} faces to make the winding consistent")
+    capped_vertices, capped_faces = cap_holes(body_vertices, body_faces)
+    if enclosed_volume(capped_vertices, capped_faces) < 0:
+        body_faces = body_faces[:, ::-1].copy()
+        repairs.append("reversed all faces so that normals point outward")
+    loops = count_boundary_loops(body_faces)
+    if loops:
+        repairs.append(f"found {loops} holes; they are capped for volume measurement only, never in the output")
+
+    # 6. Optional decimation: changes topology, so the output no longer maps onto the input.
+    source = mesh
+    if max_vertices is not None and len(body_vertices) > max_vertices:
+        body_vertices, body_faces = decimate(body_vertices, body_faces, max_vertices)
+        repairs.append(f"decimated the body to {len(body_vertices)} vertices (limit {max_vertices})")
+        source = None
+
+    # Map input vertices to body vertices; detached parts follow their nearest body vertex.
+    source_vertex_index = -np.ones(source_count, dtype=np.int64)
+    detached: list[DetachedPart] = []
+    if source is not None:
+        source_vertex_index = renumber[merged_index]
+        other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)[~in_body_face]]) if (~in_body_face).any() else np.zeros(0, np.int64)
+        other = other[renumber[other] < 0]
+        if len(other):
+            detached_source = np.flatnonzero(np.isin(merged_index, other))
+            _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
+            detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
+    for line in repairs:
+        log.debug("prepare: %s", line)
+    return PreparedMesh(
+        vertices=body_vertices,
+        faces=body_faces,
+        repairs=repairs,
+        source=source,
+        source_path=source_path,
+        source_vertex_index=source_vertex_index,
+        detached=detached,
+        boundary_loops=loops,
+    )
+
+
+# --- geometry helpers (plain numpy) ---------------------------------------------------------
+
+
+def _merge_close_vertices(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Union vertices closer than MERGE_TOLERANCE × bounding-box diagonal; returns (index, unique)."""
+    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    pairs = cKDTree(vertices).query_pairs(max(diagonal, np.finfo(float).tiny) * MERGE_TOLERANCE, output_type="ndarray")
+    n = len(vertices)
+    if len(pairs) == 0:
+        return np.arange(n), vertices
+    graph = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, group = csgraph.connected_components(graph, directed=False)
+    # Keep the first vertex of each group, in input order, so numbering stays stable.
+    first = np.full(group.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, group, np.arange(n))
+    order = np.argsort(first)
+    new_id = np.empty_like(order)
+    new_id[order] = np.arange(len(order))
+    return new_id[group], vertices[first[order]]
+
+
+def _drop_degenerate_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    areas = face_areas(vertices, faces)
+    scale = float(np.median(areas[~repeated])) if (~repeated).any() else 0.0
+    flat = areas <= 1e-12 * scale
+    keep = ~(repeated | flat)
+    return faces[keep], int((~keep).sum())
+
+
+def _drop_duplicate_faces(faces: np.ndarray) -> tuple[np.ndarray, int]:
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    first.sort()
+    return faces[first], len(faces) - len(first)
+
+
+def _drop_non_manifold_faces(faces: np.ndarray) -> tuple[np.ndarray, int]:
+    """Remove faces beyond the first two on any edge shared by more than two faces."""
+    dropped_total = 0
+    while True:
+        edges = corner_edges(faces)
+        _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+        inverse = inverse.ravel()
+        if counts.max(initial=0) <= 2:
+            return faces, dropped_total
+        face_of = np.tile(np.arange(len(faces)), 3)
+        order = np.lexsort((face_of, inverse))
+        rank = np.empty(len(order), dtype=np.int64)
+        sorted_edges = inverse[order]
+        starts = np.r_[0, np.flatnonzero(np.diff(sorted_edges)) + 1]
+        run_start = np.repeat(starts, np.diff(np.r_[starts, len(order)]))
+        rank[order] = np.arange(len(order)) - run_start
+        drop = np.unique(face_of[rank >= 2])
+        keep = np.ones(len(faces), dtype=bool)
+        keep[drop] = False
+        faces = faces[keep]
+        dropped_total += len(drop)
+
+
+def _orient_consistently(faces: np.ndarray) -> tuple[np.ndarray, int]:
+    """Flip faces so that every interior edge is traversed in opposite directions by its two faces.
+
+    Breadth-first over face adjacency from face 0 of each component. Non-orientable surfaces
+    (Möbius-like) keep whatever orientation the traversal reached.
+    """
+    faces = faces.copy()
+    edges = corner_edges(faces)
+    _, inverse = np.unique(edges, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    f = len(faces)
+    directed = directed_edges(faces)
+    forward = directed[:, 0] < directed[:, 1]   # is the face's traversal the sorted direction?
+    face_of = np.tile(np.arange(f), 3)
+    order = np.argsort(inverse, kind="stable")
+    sorted_edge = inverse[order]
+    pair_start = np.flatnonzero(np.r_[True, np.diff(sorted_edge) != 0])
+    pair_len = np.diff(np.r_[pair_start, len(order)])
+    two = pair_start[pair_len == 2]
+    a, b = order[two], order[two + 1]
+    # Faces a and b agree when they traverse the shared edge in opposite directions.
+    disagree = forward[a] == forward[b]
+    graph = sparse.coo_matrix((np.where(disagree, 2.0, 1.0), (face_of[a], face_of[b])), shape=(f, f))
+    graph = (graph + graph.T).tocsr()
+    flip = np.zeros(f, dtype=bool)
+    visited = np.zeros(f, dtype=bool)
+    for start in range(f):
+        if visited[start]:
+            continue
+        nodes, predecessors = csgraph.breadth_first_order(graph, start, directed=False, return_predecessors=True)
+        visited[nodes] = True
+        children = nodes[1:]
+        parents = predecessors[children]
+        disagrees = (np.asarray(graph[children, parents]).ravel() == 2.0).tolist()
+        # Breadth-first order: a parent's flip is settled before its children's.
+        flip_list = flip.tolist()
+        for child, parent, disagrees_with_parent in zip(children.tolist(), parents.tolist(), disagrees):
+            flip_list[child] = flip_list[parent] ^ disagrees_with_parent
+        flip = np.asarray(flip_list, dtype=bool)
+    faces[flip] = faces[flip][:, ::-1]
+    return faces, int(min(flip.sum(), f - flip.sum()))
+
+

@@ -1,0 +1,211 @@
+"""What a scaling run returns: per-step figures and the whole run's outcome (mass and stress
+ratios, each rule's achieved exponent, convergence), JSON-ready for reports.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from allorules.body import Body
+
+
+@dataclass
+class ScalingStep:
+    """One step of a run: the solved α and s and what they did (measured on the step's output)."""
+
+    alpha: float
+    scale: float
+    target_mass_ratio: float
+    mass_ratio: float          # M_out / M_in of this step
+    stress_ratio: float        # σ_out / σ_in of this step
+    modes: int
+    flipped_faces: int
+    evaluations: int           # trial meshes measured by the root find
+
+    def as_dict(self) -> dict:
+        return {key: (float(value) if isinstance(value, (float, np.floating)) else value)
+                for key, value in vars(self).items()}
+
+
+@dataclass
+class ScalingResult:
+    """A scaling run. ``mass_ratio``/``stress_ratio`` are measured on the final body against the
+    input body (stress at the same material section, see :class:`StressGauge`). The global run's
+    result; :class:`allorules.biology_scaling.BiologyScalingResult` adds a ruleset run's figures."""
+
+    mode: ClassVar[str] = "global"
+
+    body: Body
+    target_mass_ratio: float
+    steps: list = field(default_factory=list)
+    mass_ratio: float = 1.0
+    stress_ratio: float | None = 1.0
+    flipped_faces: int = 0
+    converged: bool = False
+    messages: list[str] = field(default_factory=list)
+    section: dict | None = None
+
+    def as_dict(self) -> dict:
+        """The report (JSON-ready): the figures every run has, then :meth:`details`."""
+        return {
+            "mode": self.mode,
+            "target_mass_ratio": float(self.target_mass_ratio),
+            "mass_ratio": float(self.mass_ratio),
+            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
+            "steps": len(self.steps),
+            "step_details": [step.as_dict() for step in self.steps],
+            "flipped_faces": int(self.flipped_faces),
+            "faces": int(len(self.body.faces)),
+            "converged": bool(self.converged),
+            "messages": list(self.messages),
+            "section": self.section,
+            **self.details(),
+        }
+
+    def details(self) -> dict:
+        """What only this kind of run reports: the global run's α and s per step."""
+        return {"alphas": [float(step.alpha) for step in self.steps], "scales": [float(step.scale) for step in self.steps]}
+
+
+EXPONENT_TOLERANCE = 0.02
+
+
+MASS_TOLERANCE = 0.01
+
+
+CONSTRAINT_TOLERANCE = 0.02
+
+
+@dataclass
+class RulesetStep:
+    """One step: what the solver chose and what the step did (fresh measurements of its output)."""
+
+    target_mass_ratio: float
+    scale: float
+    alpha0: float
+    alphas: dict[str, float]
+    residuals: dict[str, float]      # relative residual of every term at the solver's optimum
+    energy: float
+    evaluations: int
+    status: str
+    mass_ratio: float                # M_out / M_in of this step
+    stress_ratio: float | None
+    flipped_faces: int
+    modes: int
+    basis_seconds: float = 0.0       # wall time of the step's basis
+    solve_seconds: float = 0.0       # wall time of the step's solve (trial meshes and their measures)
+
+    def as_dict(self) -> dict:
+        return {
+            "target_mass_ratio": float(self.target_mass_ratio),
+            "scale": float(self.scale),
+            "alpha0": float(self.alpha0),
+            "alphas": {key: float(value) for key, value in self.alphas.items()},
+            "residuals": {key: float(value) for key, value in self.residuals.items()},
+            "energy": float(self.energy),
+            "evaluations": int(self.evaluations),
+            "status": self.status,
+            "mass_ratio": float(self.mass_ratio),
+            "stress_ratio": None if self.stress_ratio is None else float(self.stress_ratio),
+            "flipped_faces": int(self.flipped_faces),
+            "modes": int(self.modes),
+            "basis_seconds": round(float(self.basis_seconds), 3),
+            "solve_seconds": round(float(self.solve_seconds), 3),
+        }
+
+
+@dataclass
+class RuleOutcome:
+    """A rule over the whole run: target exponent against achieved e' = log(q_f/q_0)/log R."""
+
+    id: str
+    region: str | None
+    measure: str
+    exponent: float
+    initial: float
+    final: float
+    achieved_exponent: float
+
+    @property
+    def error(self) -> float:
+        return self.achieved_exponent - self.exponent
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "region": self.region, "measure": self.measure, "exponent": float(self.exponent),
+                "achieved_exponent": float(self.achieved_exponent), "error": float(self.error),
+                "initial": float(self.initial), "final": float(self.final)}
+
+
+@dataclass
+class BiologyScalingResult(ScalingResult):
+    """A ruleset run. Ratios are final/initial, measured afresh on the output and the input."""
+
+    mode: ClassVar[str] = "ruleset"
+
+    ruleset: str = ""
+    rules: list[RuleOutcome] = field(default_factory=list)
+    constraints: dict[str, float] = field(default_factory=dict)   # whole-run residuals
+    stress_ratio: float | None = None
+    transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
+    posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift, bend
+    posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.posture)
+    warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
+
+    def details(self) -> dict:
+        return {
+            "ruleset": self.ruleset,
+            "transform": self.transform,
+            "posture_setting": self.posture_setting,
+            "rules": [rule.as_dict() for rule in self.rules],
+            "constraints": {key: float(value) for key, value in self.constraints.items()},
+            "posture": self.posture,
+            "warnings": list(self.warnings),
+            "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE},
+        }
+
+
+@dataclass
+class RawGlobalResult:
+    """Eq. 4 applied once with the user's α and s (no measuring, no stress constraint)."""
+
+    mode: ClassVar[str] = "global-raw"
+
+    body: Body
+    alpha: float
+    scale: float
+    mass_ratio: float
+    flipped_faces: int
+    converged: bool = True
+    messages: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"mode": self.mode, "alpha": float(self.alpha), "scale": float(self.scale),
+                "mass_ratio": float(self.mass_ratio), "flipped_faces": int(self.flipped_faces),
+                "faces": int(len(self.body.faces)), "converged": True, "messages": list(self.messages)}
+
+
+@dataclass
+class LocalResult:
+    """Local scaling of one region (Eq. 5-7), or the arithmetic variant, and how its seam held."""
+
+    body: Body
+    region: str
+    alpha: float
+    arithmetic_factor: float | None
+    form: str
+    seam: dict[str, float]
+    flipped_faces: int
+    converged: bool = True
+    messages: list[str] = field(default_factory=list)
+
+    @property
+    def mode(self) -> str:
+        return "arithmetic" if self.arithmetic_factor is not None else "local"
+
+    def as_dict(self) -> dict:
+        return {"mode": self.mode, "region": self.region, "transform": self.form, "alpha": float(self.alpha),
+                "arithmetic_factor": self.arithmetic_factor, "seam": dict(self.seam),
+                "flipped_faces": int(self.flipped_faces), "faces": int(len(self.body.faces)), "converged": True,
+                "messages": list(self.messages)}

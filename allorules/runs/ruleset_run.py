@@ -1,0 +1,284 @@
+"""Biology-aware scaling runs (paper §3.2–3.3, METHOD §5–6): local power laws and ruleset runs.
+
+Owns :func:`scale_with_ruleset` (a whole run from a mass ratio R to a mesh, in steps),
+:func:`scale_region` (the local power law of Eq. 5–7 on one region, and the paper's arithmetic
+variant for comparison) and :func:`seam_strain` (how much a region's boundary tears).
+
+A run (METHOD §6):
+
+* R is split into n equal steps r = R^(1/n) no larger than the ruleset's step ratios
+  (:func:`allorules.global_scaling.step_ratios`, 1.1 / 0.9 by default).
+* Each step recomputes the harmonic basis on the step's start mesh (warm-started from the previous
+  basis), measures every target on that mesh (q* = q_0 · r^e) and solves Eq. 11 for
+  (s, α_0, α_j) (:func:`allorules.solver.solve_step`). Labels travel with the vertices (the
+  connectivity never changes).
+* What earlier steps missed is carried forward: step k's target is also multiplied by
+  q_input · R_{k−1}^e / q_0 (where the run should stand at the step's start over where it does,
+  both measured afresh), so that misses do not add up over the steps. The solver meets its
+  targets on measures carried along the step start's material curves (smooth in the variables),
+  which differ from fresh measures of the output by up to ~0.7 %; on the real horse at R = 0.5
+  that added up to a hind-leg exponent of 0.276 for 0.336 over 7 steps, each step on target.
+  When every step's output measures as planned, every correction is 1 and this is METHOD §6.
+  Constraints likewise compare each trial with the input at the mass ratio reached after the
+  step (the limb-stress one: stress at the input's material section equal to the input's), which
+  is how the whole run is judged, so their misses do not add up either.
+* Peak stress is measured at one material section chosen on the input body and followed through
+  every step (:class:`allorules.global_scaling.StressGauge`), as in global scaling.
+* Success is measured on the whole run, on fresh measurements of the output against the input:
+  achieved exponent e' = log(q_final / q_initial) / log R per rule, the body-mass ratio, and each
+  constraint's residuals with r = R. The run is ``converged`` when every |e' − e| ≤
+  ``EXPONENT_TOLERANCE`` (0.02), the mass is within ``MASS_TOLERANCE`` (1 %) and every constraint
+  residual within ``CONSTRAINT_TOLERANCE`` (2 %; for the limb-stress constraint: stress within 2 %).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from allorules.body import Body
+from allorules.errors import AllorulesError, ScalingError, SegmentationError
+from allorules.measure.stress import StressGauge
+from allorules.mesh.geometry import count_flipped_faces
+from allorules.plugins.specs import ConstraintContext
+from allorules.runs.progress import RunProgress
+from allorules.runs.results import (
+    CONSTRAINT_TOLERANCE,
+    EXPONENT_TOLERANCE,
+    MASS_TOLERANCE,
+    BiologyScalingResult,
+    RuleOutcome,
+    RulesetStep,
+)
+from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
+from allorules.solve.energy import cached_measure, energy_terms
+from allorules.solve.posture import restore_limb_axes, restore_limb_lines
+from allorules.solve.step import solve_step
+
+log = logging.getLogger("allorules")
+
+POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
+POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _check_regions(body: Body, ruleset) -> None:
+    needed = set(ruleset.regions) | {rule.region for rule in ruleset.rules if rule.region}
+    missing = sorted(region for region in needed if not body.has_region(region) or body.labels is None
+                     or not body.region_mask(region).any())
+    if missing:
+        raise SegmentationError(
+            f"ruleset {ruleset.name!r} needs region(s) {', '.join(missing)} but the body has "
+            f"{', '.join(body.region_names) or 'no labels'}; segment it (allorules segment) or give --segmentation FILE"
+        )
+
+
+def _stress_gauge(body: Body, registry, section) -> StressGauge | None:
+    """The frozen load-bearing section, when the registry's ``stress`` is the built-in one and the
+    body has limbs; otherwise stress is measured by the registered measure as it is."""
+    if registry.provider("measure", "stress") != "builtin":
+        return None
+    try:
+        return StressGauge.choose(body, override=section)
+    except AllorulesError as error:
+        log.debug("no stress gauge: %s", error)
+        return None
+
+
+def _fresh(body: Body) -> Body:
+    """The same body with an empty cache: measured from scratch, as a user measuring the file would."""
+    return body.with_vertices(body.vertices.copy())
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+
+
+def scale_with_ruleset(
+    body: Body,
+    ruleset,
+    mass_ratio: float,
+    *,
+    registry=None,
+    modes: int | None = None,
+    section=None,
+    use_cache: bool = True,
+    progress: RunProgress | None = None,
+) -> BiologyScalingResult:
+    """Scale a labelled ``body`` by the mass ratio R following ``ruleset`` (METHOD §6).
+
+    ``registry``: the plugin registry the ruleset was loaded with (default: built-ins and entry
+    points). ``modes``: basis size (default 1000). ``section``: a
+    :class:`allorules.measures.SectionChoice` overriding the load-bearing section. ``progress``
+    is told of the steps, each basis and each trial (:class:`allorules.progress.RunProgress`). Returns a
+    result whose ``converged`` says whether every target was met within the documented
+    tolerances; ``messages`` says what was missed. Raises :class:`ScalingError` only when a step
+    cannot be solved at all (``closest`` = the result so far).
+    """
+    from allorules.plugins.registry import registry_for
+
+    registry = registry if registry is not None else registry_for(None)
+    target = check_mass_ratio(mass_ratio)
+    _check_regions(body, ruleset)
+    ratios = step_ratios(target, ruleset.solver.step_ratio_up, ruleset.solver.step_ratio_down)
+    initial = _fresh(body)
+    gauge = _stress_gauge(initial, registry, section)
+    measure = cached_measure(registry, {"stress": gauge.stress} if gauge else None)
+    result = BiologyScalingResult(body=initial, ruleset=ruleset.name, target_mass_ratio=target,
+                                  section=gauge.describe() if gauge else None, transform=ruleset.solver.transform,
+                                  posture_setting=ruleset.solver.posture)
+
+    current, basis, jacobian, start = initial, None, None, None
+    terms = energy_terms(ruleset)
+    anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
+    reached = 1.0                                       # the mass ratio planned up to this step
+    progress = progress or RunProgress()
+    for index, ratio in enumerate(ratios):
+        progress.step_started(index + 1, len(ratios))
+        started = time.perf_counter()
+        basis = step_basis(current, modes, basis, use_cache, progress.basis)
+        solving = time.perf_counter()
+        corrections = _carried_misses(terms, anchors, reached, current, measure)
+        try:
+            solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian,
+                                  start=start, on_trial=progress.trial, corrections=corrections,
+                                  constraint_reference=(initial, reached * ratio))
+        except ScalingError as error:
+            result.body = current
+            _finish(result, initial, ruleset, registry, measure, gauge)
+            result.converged = False
+            message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
+            result.messages.append(message)
+            raise ScalingError(message, closest=result) from None
+        # The steps are alike (same r, nearly the same mesh): the next one starts where this one ended.
+        jacobian, start = solution.jacobian, solution.variables
+        solved = time.perf_counter()
+        following = _fresh(solution.body)
+        if ruleset.solver.posture in ("keep", "upright"):
+            following = following.with_vertices(restore_limb_axes(current, following))
+        if ruleset.solver.posture == "keep" and index < len(ratios) - 1:
+            following = following.with_vertices(restore_limb_lines(current, following))
+        if solution.feet is not None:
+            # turning a slanted leg upright moves its foot up or down a little (0.5 % of a leg per
+            # step on the automatically labelled generated horse): put the feet back once more
+            following = following.with_vertices(solution.feet.apply(following.vertices, solution.scale))
+        mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
+        mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
+        stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None
+        result.steps.append(RulesetStep(
+            target_mass_ratio=ratio, scale=solution.scale, alpha0=solution.alpha0, alphas=solution.alphas,
+            residuals=solution.residuals, energy=solution.energy, evaluations=solution.evaluations,
+            status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
+            flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
+            basis_seconds=solving - started, solve_seconds=solved - solving,
+        ))
+        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
+                  solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
+        current = following
+        reached *= ratio
+        progress.step_finished(index + 1, len(ratios))
+    result.body = current
+    _finish(result, initial, ruleset, registry, measure, gauge)
+    return result
+
+
+def _carried_misses(terms, anchors: dict[str, float], reached: float, current: Body, measure) -> dict[str, float]:
+    """Per term: where the run should stand at this step's start, q_input · R_reached^e, over
+    where it does, q(current), both fresh. 1 everywhere when the earlier steps landed as planned."""
+    corrections = {}
+    for term in terms:
+        planned = anchors[term.id] * reached ** term.exponent
+        corrections[term.id] = planned / measure(term.measure, current, term.region)
+    if any(abs(value - 1.0) > 1e-3 for value in corrections.values()):
+        log.debug("carried-forward misses: %s", {key: round(value, 4) for key, value in corrections.items()})
+    return corrections
+
+
+def posture_warnings(posture: dict[str, dict[str, float]]) -> list[str]:
+    """What a run's ``posture`` (per leg: ``tilt_degrees``, ``foot_lift``, ``bend``) should warn
+    about: legs leaning more than ``POSTURE_TILT_WARNING`` degrees, a leg bowing by more than
+    ``POSTURE_BEND_WARNING`` of its length beyond the input's bow. Empty when all is well."""
+    if not posture:
+        return []
+    warnings = []
+    tilt = max(change["tilt_degrees"] for change in posture.values())
+    lift = max(abs(change["foot_lift"]) for change in posture.values())
+    if tilt > POSTURE_TILT_WARNING:
+        warnings.append(f"the legs lean by up to {tilt:.1f}° and a foot moved {100 * lift:.1f}% of a leg's length off "
+                        "the ground; every rule may still be met (see docs/biology-scaling.md, posture)")
+    leg, change = max(posture.items(), key=lambda item: item[1]["bend"])
+    if change["bend"] > POSTURE_BEND_WARNING:
+        warnings.append(f"{leg} bows by {100 * change['bend']:.1f}% of its length more than in the input: Eq. 9 "
+                        "changed the leg's own shape, which no rule measures; look at the output "
+                        "(docs/biology-scaling.md, posture)")
+    return warnings
+
+
+def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) -> None:
+    """How the legs' stance changed over the run (no rule asks for it; the report shows it)."""
+    from allorules.measure.limbs import posture_change
+
+    try:
+        result.posture = posture_change(initial, final)
+    except AllorulesError as error:   # a body whose limbs cannot be measured: say so, do not fail the run
+        log.warning("posture not measured: %s", error)
+        return
+    result.warnings = posture_warnings(result.posture)
+    for warning in result.warnings:
+        log.warning("%s", warning)
+
+
+def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:
+    """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
+    final = _fresh(result.body)
+    if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
+        raise ScalingError("the scaled mesh has non-finite vertices; nothing was written")
+    ratio = result.target_mass_ratio
+    result.flipped_faces = count_flipped_faces(initial.vertices, final.vertices, initial.faces)
+    _report_posture(result, initial, final)
+    mass_term = energy_terms(ruleset)[0]
+    result.mass_ratio = measure(mass_term.measure, final, mass_term.region) / measure(mass_term.measure, initial, mass_term.region)
+    result.stress_ratio = gauge.stress(final) / gauge.stress(initial) if gauge else None
+    result.rules = []
+    messages = []
+    log_ratio = math.log(ratio) if ratio != 1.0 else None
+    for rule in ruleset.rules:
+        before, after = measure(rule.measure, initial, rule.region), measure(rule.measure, final, rule.region)
+        achieved = math.log(after / before) / log_ratio if log_ratio else float(rule.exponent)
+        outcome = RuleOutcome(rule.id, rule.region, rule.measure, float(rule.exponent), before, after, achieved)
+        result.rules.append(outcome)
+        if abs(outcome.error) > EXPONENT_TOLERANCE:
+            messages.append(f"rule {rule.id!r} reached exponent {achieved:.3f}, target {rule.exponent:.3f}")
+    if abs(result.mass_ratio / ratio - 1.0) > MASS_TOLERANCE:
+        messages.append(f"mass ratio {result.mass_ratio:.4f}, target {ratio:.4f}")
+    context = ConstraintContext(initial, final, ratio, measure)
+    result.constraints = {}
+    for use in ruleset.constraints:
+        spec = registry.constraint(use.name)
+        values = spec.residuals(context, spec.complete_parameters(use.parameters))
+        for name, residual in values.items():
+            key = use.name if len(values) == 1 else f"{use.name}:{name}"
+            result.constraints[key] = float(residual)
+            if not abs(residual) <= CONSTRAINT_TOLERANCE:
+                messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
+    result.converged = not messages
+    result.messages.extend(messages)
+    if messages:
+        result.messages.append(
+            f"not converged: {len(messages)} target(s) missed beyond the tolerances (exponent ±{EXPONENT_TOLERANCE}, "
+            f"mass ±{100 * MASS_TOLERANCE:g}%, constraints ±{100 * CONSTRAINT_TOLERANCE:g}%)")
+
+
+# ---------------------------------------------------------------------------------------------
+# Local scaling (Eq. 5–7) and the arithmetic comparison
+
+

@@ -1,0 +1,278 @@
+"""Files that carry a segmentation: per-vertex label JSON, Princeton ``.seg``, and merge files.
+
+* **Labels file** (``*.json``), one region index per vertex::
+
+      {"format": "allorules-labels", "version": 1,
+       "regions": ["head", "neck", ...], "labels": [0, 0, 3, ..., -1]}
+
+  ``labels[i]`` indexes ``regions``; ``-1`` means unlabelled. The generator's CLI writes the same.
+* **Princeton segmentation benchmark ``.seg``**: one integer per line, one line per FACE, in face
+  order; the integer is the face's segment. Faces get the majority label of their three vertices
+  (:func:`face_labels_from_vertices`); vertices get the area-weighted majority of their faces
+  (:func:`vertex_labels_from_faces`).
+* **Merge file** (YAML): which patches of ``allorules segment`` make up each region::
+
+      head: [3, 17]
+      neck: [9]
+      ...
+
+  Validated with errors naming the file and line: unknown patch ids, a patch in two regions,
+  a required region missing, patches left in no region.
+
+All writers are atomic (temporary file + ``os.replace``).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sparse
+import yaml
+
+from allorules.body import UNLABELLED, Body, Labelling
+from allorules.errors import RulesetError, SegmentationError, SourceLocation
+from allorules.files import atomic_write
+from allorules.mesh.geometry import face_areas
+from allorules.segment.regions import QUADRUPED_REGIONS
+
+LABELS_FORMAT = "allorules-labels"
+LABELS_VERSION = 1
+
+
+class MergeFileError(SegmentationError, RulesetError):
+    """A merge file is invalid; the message starts with ``file:line``."""
+
+
+# ---------------------------------------------------------------- labels JSON
+
+def write_labels(path: str | Path, body: Body) -> None:
+    """Write the body's per-vertex labels as an allorules labels file (JSON)."""
+    if body.labels is None:
+        raise SegmentationError("the body has no labels to write; segment it first")
+    document = {
+        "format": LABELS_FORMAT,
+        "version": LABELS_VERSION,
+        "regions": list(body.region_names),
+        "labels": [int(label) for label in body.labels],
+    }
+    if body.labelling is not None:   # who labelled it and how sure it was (optional when read)
+        document["labelling"] = body.labelling.as_dict()
+    atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
+
+
+def read_labels(path: str | Path, body: Body) -> Body:
+    """The body with the labels of an allorules labels file; checked against the body's vertex count."""
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SegmentationError(f"{path}: labels file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise SegmentationError(f"{path}: not a readable labels file ({error})") from None
+    if not isinstance(document, dict) or document.get("format") != LABELS_FORMAT:
+        raise SegmentationError(f'{path}: not an allorules labels file (expected "format": "{LABELS_FORMAT}")')
+    if document.get("version") != LABELS_VERSION:
+        raise SegmentationError(f"{path}: labels file version {document.get('version')!r} is not supported (expected {LABELS_VERSION})")
+    regions, labels = document.get("regions"), document.get("labels")
+    if not isinstance(regions, list) or not all(isinstance(name, str) for name in regions) or len(set(regions)) != len(regions):
+        raise SegmentationError(f'{path}: "regions" must be a list of distinct region names')
+    if not isinstance(labels, list) or not all(isinstance(label, int) and not isinstance(label, bool) for label in labels):
+        raise SegmentationError(f'{path}: "labels" must be a list of integers, one per vertex')
+    if len(labels) != body.vertex_count:
+        raise SegmentationError(
+            f"{path}: has {len(labels)} labels but the mesh has {body.vertex_count} vertices; "
+            "labels must come from this exact mesh (after the same preparation)"
+        )
+    labels = np.asarray(labels, dtype=np.int64)
+    bad = (labels < UNLABELLED) | (labels >= len(regions))
+    if bad.any():
+        raise SegmentationError(
+            f"{path}: label {int(labels[bad][0])} at vertex {int(np.flatnonzero(bad)[0])} is not a region index "
+            f"(0 … {len(regions) - 1}, or -1 for unlabelled)"
+        )
+    return body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")))
+
+
+def _read_labelling(value) -> Labelling | None:
+    """The optional ``labelling`` of a labels file (older files have none; a malformed one is ignored)."""
+    if not isinstance(value, dict) or not isinstance(value.get("source"), str):
+        return None
+    confidence = value.get("confidence") if isinstance(value.get("confidence"), dict) else {}
+    notes = value.get("notes") if isinstance(value.get("notes"), list) else []
+    return Labelling(value["source"], {str(key): float(number) for key, number in confidence.items()
+                                       if isinstance(number, (int, float)) and not isinstance(number, bool)},
+                     tuple(str(note) for note in notes))
+
+
+# ---------------------------------------------------------------- face <-> vertex
+
+def face_labels_from_vertices(faces: np.ndarray, vertex_labels: np.ndarray) -> np.ndarray:
+    """Per-face labels: the label held by at least two of the face's vertices, else its first vertex's."""
+    corner = vertex_labels[faces]
+    return np.where(corner[:, 1] == corner[:, 2], corner[:, 1], corner[:, 0])
+
+
+def vertex_labels_from_faces(vertices: np.ndarray, faces: np.ndarray, face_labels: np.ndarray) -> np.ndarray:
+    """Per-vertex labels: the area-weighted majority label of the faces around each vertex."""
+    face_labels = np.asarray(face_labels, dtype=np.int64)
+    labelled = face_labels >= 0
+    n = len(vertices)
+    result = np.full(n, UNLABELLED, dtype=np.int64)
+    if not labelled.any():
+        return result
+    areas = face_areas(vertices, faces)[labelled] + 1e-300  # a zero-area face still votes, weakly
+    rows = faces[labelled].ravel()
+    columns = np.repeat(face_labels[labelled], 3)
+    votes = sparse.coo_matrix((np.repeat(areas, 3), (rows, columns)), shape=(n, int(face_labels.max()) + 1)).tocsr()
+    has_vote = np.asarray(votes.sum(axis=1)).ravel() > 0
+    result[has_vote] = np.asarray(votes[has_vote].argmax(axis=1)).ravel()
+    return result
+
+
+# ---------------------------------------------------------------- Princeton .seg
+
+def write_seg(path: str | Path, body: Body) -> None:
+    """Write per-face labels, one integer per line (Princeton benchmark ``.seg``); −1 for unlabelled faces."""
+    if body.labels is None:
+        raise SegmentationError("the body has no labels to write; segment it first")
+    face_labels = face_labels_from_vertices(body.faces, body.labels)
+    atomic_write(path, "".join(f"{int(label)}\n" for label in face_labels))
+
+
+def read_seg(path: str | Path, body: Body, region_names: tuple[str, ...] | list[str] | None = None) -> Body:
+    """The body labelled from a Princeton ``.seg`` file (one segment id per face).
+
+    Segment ``i`` becomes region ``region_names[i]``; without names the regions are called
+    ``segment0``, ``segment1``, … Vertices take the area-weighted majority of their faces.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").split()
+    except FileNotFoundError:
+        raise SegmentationError(f"{path}: .seg file not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SegmentationError(f"{path}: not a readable .seg file ({error})") from None
+    try:
+        face_labels = np.array([int(token) for token in lines], dtype=np.int64)
+    except ValueError as error:
+        raise SegmentationError(f"{path}: a .seg file holds one integer per line ({error})") from None
+    if len(face_labels) != len(body.faces):
+        raise SegmentationError(
+            f"{path}: has {len(face_labels)} face labels but the mesh has {len(body.faces)} faces; "
+            "a .seg file must come from this exact mesh"
+        )
+    if (face_labels < UNLABELLED).any():
+        raise SegmentationError(f"{path}: segment ids must be 0 or more (or -1 for unlabelled)")
+    count = int(face_labels.max()) + 1 if len(face_labels) else 0
+    if region_names is None:
+        region_names = tuple(f"segment{i}" for i in range(count))
+    region_names = tuple(region_names)
+    if count > len(region_names):
+        raise SegmentationError(f"{path}: segment id {count - 1} has no region name (names given: {', '.join(region_names)})")
+    labels = vertex_labels_from_faces(body.vertices, body.faces, face_labels)
+    return Body(body.vertices, body.faces, labels, region_names, body.frame)
+
+
+# ---------------------------------------------------------------- merge files
+
+def read_merge_file(path: str | Path, patch_count: int, required: tuple[str, ...] | None = None) -> dict[str, list[int]]:
+    """Parse and validate a merge file: region name → list of patch ids.
+
+    Errors (``MergeFileError``, message starting with ``file:line``): not YAML / not a mapping,
+    a region whose value is not a list of integers, an id outside 0 … patch_count−1, a patch in
+    two regions, a required region missing, and patches that belong to no region.
+    """
+
+    required = QUADRUPED_REGIONS if required is None else tuple(required)
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MergeFileError("merge file not found", SourceLocation(path)) from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise MergeFileError(f"cannot read merge file ({error})", SourceLocation(path)) from None
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise MergeFileError(f"not valid YAML: {problem}", SourceLocation(path, line)) from None
+    if root is None or not isinstance(root, yaml.MappingNode):
+        raise MergeFileError(
+            "a merge file maps each region to a list of patch ids, e.g. 'head: [3, 17]'",
+            SourceLocation(path, root.start_mark.line + 1 if root is not None else 1),
+        )
+    regions: dict[str, list[int]] = {}
+    owner: dict[int, tuple[str, int]] = {}
+    for key_node, value_node in root.value:
+        line = key_node.start_mark.line + 1
+        name = key_node.value if isinstance(key_node, yaml.ScalarNode) else None
+        if not name or not isinstance(name, str):
+            raise MergeFileError("region names must be plain words", SourceLocation(path, line))
+        if name in regions:
+            raise MergeFileError(f"region {name!r} is given twice", SourceLocation(path, line))
+        items = value_node.value if isinstance(value_node, yaml.SequenceNode) else [value_node] if isinstance(value_node, yaml.ScalarNode) else None
+        if items is None:
+            raise MergeFileError(f"region {name!r} must list patch ids, e.g. '{name}: [3, 17]'", SourceLocation(path, line))
+        ids = []
+        for item in items:
+            item_line = item.start_mark.line + 1
+            if not isinstance(item, yaml.ScalarNode) or item.tag != "tag:yaml.org,2002:int":
+                if isinstance(item, yaml.ScalarNode) and item.tag == "tag:yaml.org,2002:null":
+                    continue  # 'ears:' with nothing after it
+                raise MergeFileError(f"patch id {getattr(item, 'value', item)!r} of region {name!r} is not an integer", SourceLocation(path, item_line))
+            try:
+                patch = int(item.value)
+            except ValueError:  # YAML also allows 0x1f, 0o17, 1_000
+                patch = int(item.value.replace("_", ""), 0)
+            if not 0 <= patch < patch_count:
+                raise MergeFileError(
+                    f"unknown patch id {patch} in region {name!r}: patches are numbered 0 … {patch_count - 1}",
+                    SourceLocation(path, item_line),
+                )
+            if patch in owner:
+                first, first_line = owner[patch]
+                raise MergeFileError(
+                    f"patch {patch} is in two regions: {first!r} (line {first_line}) and {name!r}",
+                    SourceLocation(path, item_line),
+                )
+            owner[patch] = (name, item_line)
+            ids.append(patch)
+        regions[name] = ids
+    missing = [name for name in required if not regions.get(name)]
+    if missing:
+        raise MergeFileError(
+            f"required region{'s' if len(missing) > 1 else ''} {', '.join(missing)} missing or empty "
+            f"(needed: {', '.join(required)})",
+            SourceLocation(path, root.end_mark.line + 1 if root.end_mark.column else root.end_mark.line),
+        )
+    unassigned = sorted(set(range(patch_count)) - set(owner))
+    if unassigned:
+        raise MergeFileError(
+            f"patch{'es' if len(unassigned) > 1 else ''} {', '.join(map(str, unassigned))} belong to no region; "
+            "add each to the region it is part of",
+            SourceLocation(path, root.end_mark.line + 1 if root.end_mark.column else root.end_mark.line),
+        )
+    return regions
+
+
+def apply_merge_file(body: Body, patches: np.ndarray, path: str | Path, required: tuple[str, ...] | None = None) -> Body:
+    """The body labelled by merging its patches into regions as a merge file says.
+
+    Region order: the required regions (the six quadruped regions by default) first, then any
+    extra regions in the order the file names them.
+    """
+    patches = np.asarray(patches, dtype=np.int64)
+    if patches.shape != (body.vertex_count,):
+        raise SegmentationError(f"patch ids must be one per vertex ({body.vertex_count}), got {patches.shape}")
+    patch_count = int(patches.max()) + 1
+    regions = read_merge_file(path, patch_count, required)
+
+    required = QUADRUPED_REGIONS if required is None else tuple(required)
+    names = tuple(required) + tuple(name for name in regions if name not in required)
+    lookup = np.full(patch_count, UNLABELLED, dtype=np.int64)
+    for index, name in enumerate(names):
+        lookup[regions.get(name, [])] = index
+    return Body(body.vertices, body.faces, lookup[patches], names, body.frame)

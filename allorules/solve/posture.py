@@ -1,0 +1,259 @@
+"""The animal's stance through a run: legs upright and every foot on the ground (``solver.posture``).
+
+Eq. 9 changes a limb's modes by other factors than the body's, so a step can meet every rule and
+still leave a leg leaning, or a pair of feet off the ground (docs/biology-scaling.md, posture).
+No rule measures a direction or a height, so this module keeps them, without touching what the
+rules measure:
+
+* :class:`FootContact` is part of each step's transform (:class:`allorules.solver.StepTransform`):
+  after Eq. 9, each leg is moved rigidly up or down along the ground's normal so that the feet
+  keep the heights above one another they had at the step's start (scaled with the body); the
+  rest of the body follows in a harmonic blend of the legs' shifts. The solver measures, and so
+  meets its targets on, the mesh with the feet put back.
+* :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
+  after the step; the step's foot contact is then applied once more, since turning a slanted
+  leg moves its foot (:func:`allorules.biology_scaling.scale_with_ruleset`).
+* :func:`restore_limb_lines` gives each leg's centre line, below its first cross-section, back
+  the shape it had at the step's start (a leg Eq. 9 bowed is straightened), after every step but
+  the last, so that the next step's carried-forward misses make up what it changed.
+
+``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
+paper's behaviour).
+
+The first two move each leg as a rigid whole (the turn below a short blend at its top), so its
+length, girths and load-bearing section are what the step made them; the third moves each
+cross-section as a whole, across the leg.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.csgraph as csgraph
+from scipy.sparse.linalg import splu
+
+from allorules.body import Body
+from allorules.mesh.topology import vertex_graph
+
+POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
+
+
+def _limbs(body: Body) -> list:
+    """The limb parts of ``body`` (every part of every limb region it has), junction → tip."""
+    from allorules.measure.limbs import limb_sections
+    from allorules.measure.parts import LIMB_REGIONS
+
+    return [limb for region in LIMB_REGIONS
+            if body.has_region(region) and body.labels is not None and body.region_mask(region).any()
+            for limb in limb_sections(body, region)]
+
+
+def _limb_pairs(reference: Body, moved: Body) -> list[tuple]:
+    """Each limb of ``reference`` with the same limb on ``moved`` (same faces and labels), measured
+    on the same material loops (:func:`allorules.measures.carry_fields`)."""
+    from allorules.measure.parts import carry_fields
+
+    limbs = _limbs(reference)        # before carrying: the same limbs
+    return list(zip(limbs, _limbs(carry_fields(reference, moved.with_vertices(moved.vertices)))))
+
+
+def _smoothstep(ramp: np.ndarray) -> np.ndarray:
+    ramp = np.clip(ramp, 0.0, 1.0)
+    return ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+# ---------------------------------------------------------------------------------------------
+# Feet on the ground
+
+
+@dataclass(frozen=True)
+class FootContact:
+    """How to put a moved body's feet back at the heights above one another it had.
+
+    ``feet[k]``: body vertices of leg k's foot (the leg beyond its last cross-section);
+    ``weights[k]``: how much each body vertex follows leg k's shift (1 on the leg, 0 on the
+    other legs, a harmonic blend in between: see :meth:`of`);
+    ``heights[k]``: the foot's height above the feet's mean, along ``down``, at the start.
+    """
+
+    down: np.ndarray
+    feet: tuple[np.ndarray, ...]
+    weights: np.ndarray          # (legs, vertices)
+    heights: np.ndarray          # (legs,)
+
+    @classmethod
+    def of(cls, body: Body) -> "FootContact | None":
+        """The feet of ``body`` as they stand; ``None`` for a body with fewer than two legs.
+
+        The weights are harmonic over the rest of the body (:func:`_harmonic_weights`): 1 on leg
+        k and 0 on the other legs, and in between the smoothest blend, so the torso follows the
+        legs' shifts without a crease and the weights sum to 1 everywhere. Each piece hanging
+        off the torso (the tail; the neck with the head) is one rigid node of that blend: it
+        moves as one, and is not bent or sheared.
+        """
+        from allorules.measure.limbs import stance_down
+        from allorules.measure.parts import TORSO_REGIONS
+
+        limbs = [limb for limb in _limbs(body) if limb.sections]
+        if len(limbs) < 2:
+            return None
+        on_leg = np.full(len(body.vertices), -1)
+        for k, limb in enumerate(limbs):
+            on_leg[limb.mesh.vertex_index] = k
+        torso = np.zeros(len(body.vertices), dtype=bool)
+        for region in TORSO_REGIONS:
+            if body.has_region(region):
+                torso |= body.region_mask(region)
+        torso &= on_leg < 0
+        if not torso.any():                 # no torso labelled: everything but the legs blends
+            torso = on_leg < 0
+        weights = _harmonic_weights(_conductances(body.vertices, body.faces), on_leg, torso, len(limbs))
+        feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)
+        down = stance_down(limbs, body.frame)
+        contact = cls(down, feet, weights, np.zeros(len(limbs)))
+        return cls(down, feet, weights, contact.foot_heights(body.vertices))
+
+    def foot_heights(self, vertices: np.ndarray) -> np.ndarray:
+        """Each foot's height above the feet's mean, along −``down`` (its vertices' mean)."""
+        heights = np.array([-(vertices[foot] @ self.down).mean() for foot in self.feet])
+        return heights - heights.mean()
+
+    def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
+        """``vertices`` with each leg shifted along ``down`` so that the feet stand as at the start,
+        heights × ``scale`` (the step's isometric factor): x' = x + Σ_k w_k(x) δ_k · down with
+        δ_k = h_k(x) − scale · h_k(start). The shifts sum to zero, so the body does not sink."""
+        shift = self.foot_heights(vertices) - scale * self.heights
+        return vertices + np.outer(self.weights.T @ shift, self.down)
+
+
+def _harmonic_weights(conductance: sparse.csr_matrix, on_leg: np.ndarray, torso: np.ndarray, legs: int) -> np.ndarray:
+    """Per leg k, a weight on every vertex: 1 on leg k (``on_leg == k``), 0 on the other legs,
+    harmonic elsewhere (Σ_j c_ij (w_j − w_i) = 0, conductances c = 1 / edge length), with every
+    connected piece of what is neither leg nor ``torso`` one node (it moves as one). The weights
+    lie in [0, 1] (maximum principle) and sum to 1 wherever a leg can be reached; a piece that
+    reaches no leg gets 0."""
+    count = len(on_leg)
+    free = on_leg < 0
+    fixed = np.zeros((count, legs))
+    fixed[~free, on_leg[~free]] = 1.0
+    if not free.any():
+        return fixed.T
+    # the unknowns: one per torso vertex, one per piece hanging off it
+    node = np.full(count, -1)
+    node[torso] = np.arange(int(torso.sum()))
+    hanging = free & ~torso
+    if hanging.any():
+        keep = sparse.diags(hanging.astype(float))          # only the edges between hanging vertices
+        _, piece = csgraph.connected_components(keep @ conductance @ keep, directed=False)
+        _, pieces = np.unique(piece[hanging], return_inverse=True)
+        node[hanging] = int(torso.sum()) + pieces
+    unknowns = int(node.max()) + 1
+    rows = np.flatnonzero(free)
+    gather = sparse.csr_matrix((np.ones(len(rows)), (rows, node[rows])), shape=(count, unknowns))
+    laplacian = sparse.diags(np.asarray(conductance.sum(axis=1)).ravel()) - conductance
+    # Gᵀ L G w = −Gᵀ L w_fixed; a diagonal 1e-12 of the smallest row's keeps every piece solvable
+    # (one that reaches no leg gets 0) without leaking weight anywhere else (a zero-length edge's
+    # huge conductance would make one relative to a typical row leak)
+    system = (gather.T @ laplacian @ gather).tocsc()
+    diagonal = system.diagonal()
+    smallest = float(diagonal[diagonal > 0].min()) if np.any(diagonal > 0) else 1.0
+    system = system + sparse.identity(unknowns, format="csc") * (1e-12 * smallest)
+    right = -(gather.T @ (laplacian @ fixed))
+    solved = splu(system).solve(np.ascontiguousarray(right))
+    return (fixed + gather @ solved).T
+
+
+def _conductances(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
+    """The mesh's edges as a symmetric sparse matrix of conductances 1 / edge length."""
+    graph = vertex_graph(vertices, faces)
+    graph.data = 1.0 / np.maximum(graph.data, 1e-6 * graph.data.mean())    # a zero-length edge joins firmly, finitely
+    return graph
+
+
+# ---------------------------------------------------------------------------------------------
+# Legs upright
+
+
+def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
+    """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
+    when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a limb
+    turned upside down is not a lean to straighten)."""
+    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
+    axis, cosine = np.cross(start, end), float(start @ end)
+    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
+        return None
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
+
+
+def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
+    """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
+
+    Per limb part: R = the smallest rotation taking its axis on ``moved`` (junction centroid →
+    foot tip) back to its axis on ``reference``; vertices turn by R about the junction,
+    x' = x + w·(J + R(x − J) − x), with w rising smoothly (smoothstep) from 0 at the junction to 1
+    at ``POSTURE_BLEND`` of the limb's length along its own field, so the shoulder stays joined to
+    the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
+    Bodies without limbs come back unchanged.
+    """
+    vertices = moved.vertices.copy()
+    for before, after in _limb_pairs(reference, moved):
+        if not before.sections:
+            continue
+        rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
+        if rotation is None:
+            continue
+        fractions = np.array([section.fraction for section in before.sections])
+        lowest = float(before.field.min())
+        blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
+        if blend_level <= lowest:
+            continue
+        weight = _smoothstep((before.field - lowest) / (blend_level - lowest))
+        index = after.mesh.vertex_index
+        turned = after.junction + (vertices[index] - after.junction) @ rotation.T
+        vertices[index] += weight[:, None] * (turned - vertices[index])
+    return vertices
+
+
+def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
+    """``moved``'s vertices with each limb's centre line given back the shape it had in
+    ``reference``: a leg that Eq. 9 bowed is straightened, a leg that was bent (a hock) keeps
+    its bend.
+
+    Per limb part, the centre line is the chain of section centroids c_j, from the first section
+    (just below the junction) to the last (above the foot); its chord runs from the first
+    centroid to the last. On ``reference`` each centroid lies at a fraction t_j along the chord
+    plus an offset r_j across it. On ``moved``, section j is moved by
+    d_j = c_0 + t_j·chord + σ·Q r_j − c_j (σ the chord's change of length, Q the smallest rotation
+    between the chords), the part of it along the chord dropped; between sections d is
+    interpolated along the limb's field. d is 0 at the first and at the last section, and above
+    and below them, so the body, the leg's top and the foot stay where they are and nothing is
+    torn. The junction itself is left alone: moving it would move the body around the groin
+    (tried: faces flipped there; docs/biology-scaling.md, posture).
+    Bodies without limbs come back unchanged.
+    """
+    vertices = moved.vertices.copy()
+    for before, after in _limb_pairs(reference, moved):
+        if len(before.sections) < 2:
+            continue
+        # the centroids from the second section on, relative to the first: the last is the chord
+        centroids_start, centroids_now = before.centroids, after.centroids
+        line_start, line_now = centroids_start[1:] - centroids_start[0], centroids_now[1:] - centroids_now[0]
+        chord_start, chord_now = line_start[-1], line_now[-1]
+        reach_start, reach_now = float(np.linalg.norm(chord_start)), float(np.linalg.norm(chord_now))
+        if reach_start == 0.0 or reach_now == 0.0:
+            continue
+        across_start = line_start - np.outer(line_start @ chord_start / reach_start ** 2, chord_start)   # r_j
+        rotation = _rotation_between(chord_start, chord_now)
+        if rotation is not None:
+            across_start = across_start @ rotation.T                                                  # Q r_j
+        target = np.outer(line_now @ chord_now / reach_now ** 2, chord_now) + (reach_now / reach_start) * across_start
+        shift = target - line_now
+        direction = chord_now / reach_now
+        shift -= np.outer(shift @ direction, direction)                 # across the leg only
+        shifts = np.vstack([np.zeros(3), shift])                        # d_0 = 0 (and d_last = 0)
+        index = after.mesh.vertex_index
+        for axis in range(3):   # interpolated along the field; 0 above the first and below the last section
+            vertices[index, axis] += np.interp(after.field, before.levels, shifts[:, axis], left=0.0, right=0.0)
+    return vertices

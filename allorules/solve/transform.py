@@ -1,0 +1,110 @@
+"""The step's transform (paper Eq. 9, dimensionless per METHOD §5/§6): from the variables
+(s, α_0, α_j) to the trial mesh, in the animal's own axes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from allorules.body import Body
+from allorules.rules.model import TRANSFORM_FORMS
+from allorules.solve.posture import FootContact
+from allorules.spectral.basis import HarmonicBasis, transform
+from allorules.spectral.power_laws import (
+    apply_to_mesh,
+    dimensionless,
+    from_mode_magnitudes,
+    mode_magnitudes,
+    mode_shares,
+    multi_region_power_law,
+)
+
+
+def anatomical_axes(body: Body) -> np.ndarray:
+    """The animal's own axes as rows (forward, up, side), orthonormal and right-handed, in mesh
+    coordinates: from ``body.frame`` when the labeller found one; else from the regions (forward:
+    abdomen → head, neck or chest; up: limbs → torso); else the mesh's own axes."""
+    forward = up = None
+    if body.frame is not None:
+        forward, up = np.asarray(body.frame.forward, dtype=float), np.asarray(body.frame.up, dtype=float)
+    elif body.labels is not None:
+        def centroid(names: tuple[str, ...]) -> np.ndarray | None:
+            mask = np.zeros(len(body.vertices), dtype=bool)
+            for name in names:
+                if body.has_region(name):
+                    mask |= body.region_mask(name)
+            return body.vertices[mask].mean(axis=0) if mask.any() else None
+
+        front = centroid(("head", "neck"))
+        front = front if front is not None else centroid(("chest",))
+        back, torso, limbs = centroid(("abdomen",)), centroid(("chest", "abdomen")), centroid(("forelimbs", "hindlimbs"))
+        if all(point is not None for point in (front, back, torso, limbs)):
+            forward, up = front - back, torso - limbs
+    if forward is None or up is None or np.linalg.norm(np.cross(forward, up)) < 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
+        return np.eye(3)
+    forward = forward / np.linalg.norm(forward)
+    up = up - (up @ forward) * forward
+    up = up / np.linalg.norm(up)
+    return np.array([forward, up, np.cross(forward, up)])
+
+
+@dataclass
+class StepTransform:
+    """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j.
+
+    ``form`` is how coefficients are made dimensionless (:mod:`allorules.scaling`): ``"per-axis"``
+    (METHOD §5: u = x̃ / c per axis, the power law on each axis) or ``"per-mode"`` (ρ_i = ‖x̃_i‖ / c,
+    the power law on each mode's vector length, its direction kept; u_j = the region's share of
+    the mode). ``u`` and each ``region_us[j]`` are (m, 3) per axis and (m,) per mode.
+    """
+
+    body: Body
+    basis: HarmonicBasis
+    regions: tuple[str, ...]
+    coefficients: np.ndarray
+    u: np.ndarray
+    c: np.ndarray | float
+    region_us: list[np.ndarray]
+    form: str = "per-axis"
+    axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
+    feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.posture)
+
+    @classmethod
+    def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
+           keep_feet: bool = False) -> "StepTransform":
+        if form not in TRANSFORM_FORMS:
+            raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
+        coefficients = transform(basis, body.vertices)
+        axes = anatomical_axes(body) if form == "per-axis" else None
+        # per axis: the axes are the animal's own (forward, up, side), so that the result does not
+        # depend on how the mesh is turned; the coefficients of those coordinates are x̃ Aᵀ.
+        u, c = dimensionless(coefficients @ axes.T) if form == "per-axis" else mode_magnitudes(coefficients)
+        # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
+        centred = body.vertices - (basis.mass @ body.vertices) / basis.mass.sum()
+        region_us = []
+        for region in regions:
+            mask = body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
+            region_coefficients = transform(basis, centred * mask[:, None])            # x̃_seg
+            region_us.append(region_coefficients @ axes.T / c if form == "per-axis"
+                             else mode_shares(region_coefficients, coefficients, c))
+        feet = FootContact.of(body) if keep_feet else None
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet)
+
+    def vertices(self, variables: np.ndarray) -> np.ndarray:
+        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back)."""
+        scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
+        u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
+        if self.form == "per-axis":
+            # x̃' = x̃ + c·(u' − u), the change taken in the animal's axes and turned back to the
+            # mesh's; exactly x̃ where u' = u
+            new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
+        else:
+            new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
+        vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        return vertices if self.feet is None else self.feet.apply(vertices, scale)
+
+    def body_at(self, variables: np.ndarray) -> Body:
+        from allorules.measure.parts import carry_fields
+
+        return carry_fields(self.body, self.body.with_vertices(self.vertices(variables)))
