@@ -128,11 +128,56 @@ def test_the_panel_draws_without_errors(scaled):
     assert settings.mass_ratio == pytest.approx(1.0)
 
 
+class RecordingLayout:
+    """Stands in for bpy.types.UILayout (which only Blender's UI can make): records what is drawn."""
+
+    def __init__(self, log=None):
+        self.log = [] if log is None else log
+
+    def _child(self, *args, **kwargs):
+        return RecordingLayout(self.log)
+
+    column = row = box = grid_flow = _child
+
+    def label(self, text="", icon='NONE'):
+        self.log.append(("label", text, icon))
+
+    def prop(self, data, name, **kwargs):
+        assert hasattr(data, name), name
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **kwargs):
+        self.log.append(("operator", idname))
+        return type("Properties", (), {})()
+
+    def separator(self):
+        pass
+
+
+def test_the_panel_shows_the_settings_and_the_last_run(scaled):
+    from allorules.blender.panel import VIEW3D_PT_allorules
+
+    layout = RecordingLayout()
+    VIEW3D_PT_allorules.draw(type("Panel", (), {"layout": layout,
+                                                "draw_result": staticmethod(VIEW3D_PT_allorules.draw_result)})(),
+                             bpy.context)
+    drawn = layout.log
+    assert ("prop", "ruleset") in drawn and ("prop", "mass_ratio") in drawn
+    assert ("operator", "allorules.scale") in drawn and ("operator", "allorules.gallery") in drawn
+    assert drawn.count(("operator", "allorules.mass_ratio_times")) == 2
+    labels = [entry[1] for entry in drawn if entry[0] == "label"]
+    assert any("Horse_x2" in text for text in labels)
+    for rule in ("foreleg-length", "hindleg-length", "chest-girth", "head-mass", "abdomen-mass"):
+        assert rule in labels
+    assert labels.count("met") == 5 and "missed" not in labels
+
+
 def test_gallery_puts_minified_original_magnified_in_a_row(blender):
     original = quadruped_object("Foal", modifier=False)
     before = world_positions(original)
     objects = set(bpy.data.objects)
-    assert bpy.ops.allorules.gallery(mass_ratio=1.2, global_mode=True, modes=40) == {'FINISHED'}
+    # as the panel's button calls it; without a window (headless) the run completes before returning
+    assert bpy.ops.allorules.gallery('INVOKE_DEFAULT', mass_ratio=1.2, global_mode=True, modes=40) == {'FINISHED'}
     small, large = sorted(set(bpy.data.objects) - objects, key=lambda obj: obj.name)
     assert (small.name, large.name) == ("Foal_x0.833", "Foal_x1.2")
     forward = np.array([math.cos(0.4), math.sin(0.4), 0.0])
@@ -216,3 +261,94 @@ def test_the_extension_installs_from_its_file_and_runs(tmp_path):
     assert outcome["module"].startswith(str(tmp_path / "blender-user" / "extensions")), outcome["module"]
     assert outcome["result"] == ["FINISHED"] and outcome["objects"] == 1 and outcome["name"] == "Horse_x1.1"
     assert outcome["vertices"] > 1500 and outcome["uv"] == ["UVMap"] and outcome["materials"] == ["Coat", "Hooves"]
+
+
+# --- the UI path: invoke, modal timer, Esc ------------------------------------------------------------
+
+
+class ModalDriver:
+    """Drives the scale operator's invoke/modal code as Blender's event loop would (bpy has no
+    window when headless): real Blender data, a stand-in window manager, workspace and events."""
+
+    def __init__(self, **settings):
+        from allorules.blender import operators
+
+        class Driven(operators._RunsAllorules):
+            ratios = operators.ALLORULES_OT_scale.ratios
+            place = operators.ALLORULES_OT_scale.place
+
+            def report(self, kinds, text):
+                self.reports.append((set(kinds), text))
+
+        self.operator = Driven()
+        self.operator.reports = []
+        defaults = dict(ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z")
+        for key, value in {**defaults, **settings}.items():
+            setattr(self.operator, key, value)
+        self.status: list = []
+        self.timers = []
+        driver = self
+
+        class WindowManager:
+            def event_timer_add(self, seconds, window=None):
+                driver.timers.append("timer")
+                return "timer"
+
+            def event_timer_remove(self, timer):
+                driver.timers.remove(timer)
+
+            def modal_handler_add(self, operator):
+                pass
+
+        class Workspace:
+            def status_text_set(self, text):
+                driver.status.append(text)
+
+        self.context = type("Context", (), {
+            "window": object(), "window_manager": WindowManager(), "workspace": Workspace(),
+            "active_object": property(lambda _: bpy.context.active_object),
+            "scene": property(lambda _: bpy.context.scene), "view_layer": property(lambda _: bpy.context.view_layer),
+            "evaluated_depsgraph_get": lambda _: bpy.context.evaluated_depsgraph_get(),
+        })()
+
+    def event(self, kind):
+        return type("Event", (), {"type": kind, "value": "PRESS"})()
+
+    def run(self, cancel_at_step: int | None = None, timeout: float = 300):
+        import time
+
+        assert self.operator.invoke(self.context, self.event("NONE")) == {'RUNNING_MODAL'}
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+            if cancel_at_step is not None and self.operator._run.progress.step >= cancel_at_step:
+                assert self.operator.modal(self.context, self.event("ESC")) == {'RUNNING_MODAL'}
+                cancel_at_step = None
+            outcome = self.operator.modal(self.context, self.event("TIMER"))
+            if outcome != {'PASS_THROUGH'}:
+                return outcome
+        raise AssertionError("the run did not finish in time")
+
+
+def test_from_the_ui_it_runs_in_the_background_and_shows_progress(blender):
+    quadruped_object("Colt", modifier=False)
+    objects, meshes = set(bpy.data.objects), set(bpy.data.meshes)
+    driver = ModalDriver(mass_ratio=1.1)
+    assert driver.run() == {'FINISHED'}
+    (new,) = set(bpy.data.objects) - objects
+    assert new.name == "Colt_x1.1" and bpy.context.active_object == new
+    assert set(bpy.data.meshes) - meshes == {new.data}
+    shown = [text for text in driver.status if text]
+    assert shown and all(text.startswith("allorules: Colt_x1.1") and text.endswith("Esc to cancel") for text in shown)
+    assert driver.status[-1] is None and driver.timers == []        # status bar cleared, timer removed
+    assert any("mass ×1.100" in text for _, text in driver.operator.reports)
+
+
+def test_esc_cancels_a_ui_run_and_adds_nothing(blender):
+    quadruped_object("Filly", modifier=False)
+    objects, meshes = set(bpy.data.objects), set(bpy.data.meshes)
+    driver = ModalDriver(mass_ratio=3.0)
+    assert driver.run(cancel_at_step=1) == {'CANCELLED'}
+    assert driver.operator.reports == [({'WARNING'}, "allorules: cancelled; nothing was added")]
+    assert "allorules: cancelling…" in driver.status and driver.status[-1] is None and driver.timers == []
+    assert set(bpy.data.objects) == objects and set(bpy.data.meshes) == meshes
