@@ -18,7 +18,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 from ..errors import AllorulesError
 from . import adapter
 from .objects import SourceMesh, add_object, beside, discard, frame_axes, read_source
-from .results import run_summary
+from .results import RunSummary, run_summary
 from .runner import BackgroundRun, Cancelled
 
 log = logging.getLogger("allorules.blender")
@@ -141,8 +141,6 @@ class _RunsAllorules:
             summaries.append(summary.as_dict())
         context.scene.allorules.last_result = json.dumps(summaries)
         for summary in summaries:
-            from .results import RunSummary
-
             self.report({'INFO'}, RunSummary.from_dict(summary).line())
         return {'FINISHED'}
 
@@ -192,7 +190,7 @@ class _RunsAllorules:
             return self.fail(self._run.error)
         try:
             return self.finish(context, self._source, self._run.result)
-        except AllorulesError as error:
+        except Exception as error:   # noqa: BLE001 - every failure becomes a report
             return self.fail(error)
 
     def cancel(self, context):      # Blender closes the operator (file loaded, window closed)
