@@ -1,0 +1,178 @@
+"""The Blender add-on's parts that need no Blender: the adapter, the run summary, the worker
+thread, and building the extension archive (offline, from local wheels)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomllib
+
+from allorules.blender import adapter
+from allorules.blender.build import BuildError, build_extension
+from allorules.blender.results import run_summary
+from allorules.blender.runner import BackgroundRun, Cancelled
+from allorules.errors import AllorulesError, RulesetError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_importing_the_addon_needs_no_bpy():
+    code = ("import sys; sys.modules['bpy'] = None\n"
+            "import allorules, allorules.blender, allorules.blender.adapter, allorules.blender.build, "
+            "allorules.blender.results, allorules.blender.runner\n"
+            "try:\n    allorules.blender.register()\nexcept ImportError:\n    print('register needs bpy')\n")
+    completed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert completed.returncode == 0, completed.stderr
+    assert completed.stdout.strip() == "register needs bpy"
+
+
+@pytest.fixture(scope="module")
+def standing_z_up():
+    """The generated horse turned to stand on the XY plane (+Z up), with its seams split as a
+    UV-mapped mesh has them: the first 50 triangles get vertices of their own."""
+    from allorules.mesh.quadruped import generate_quadruped
+
+    horse = generate_quadruped("horse", 2000)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])    # +Y up becomes +Z up
+    vertices = horse.vertices @ turn.T + np.array([3.0, -1.0, 0.25])
+    faces = horse.faces.copy()
+    split = faces[:50].ravel().copy()
+    faces[:50] = (len(vertices) + np.arange(len(split))).reshape(-1, 3)
+    return np.vstack([vertices, vertices[split]]), faces, split
+
+
+def test_scale_arrays_gives_every_blender_vertex_a_place_on_the_same_ground(standing_z_up):
+    vertices, faces, split = standing_z_up
+    new, report = adapter.scale_arrays(vertices, faces, mass_ratio=1.2, modes=40, global_mode=True)
+    assert new.shape == vertices.shape
+    assert report["converged"] and report["mass_ratio"] == pytest.approx(1.2, rel=1e-3)
+    # split seam vertices stay with the vertex they were split from
+    np.testing.assert_allclose(new[len(vertices) - len(split):], new[split], atol=1e-12)
+    # detected up is +Z, and the lowest point stays on the input's ground
+    assert np.dot(report["up"], [0.0, 0.0, 1.0]) > 0.99
+    up = np.asarray(report["up"])
+    assert (new @ up).min() == pytest.approx((vertices @ up).min(), abs=1e-9)
+    # it did change the animal: mass up 20 % means about 6 % longer
+    assert np.ptp(new[:, 0]) / np.ptp(vertices[:, 0]) == pytest.approx(1.2 ** (1 / 3), rel=0.05)
+
+
+def test_bad_settings_are_refused_before_any_work(standing_z_up):
+    vertices, faces, _ = standing_z_up
+    with pytest.raises(RulesetError, match="unknown ruleset 'no-such-set'"):
+        adapter.scale_arrays(vertices, faces, ruleset="no-such-set", mass_ratio=2.0)
+    with pytest.raises(AllorulesError, match="posture"):
+        adapter.check_settings(ruleset="quadruped", mass_ratio=2.0, modes=None, posture="crouch", global_mode=False)
+    with pytest.raises(AllorulesError):
+        adapter.check_settings(ruleset="quadruped", mass_ratio=-1.0, modes=None, posture=None, global_mode=False)
+
+
+def test_run_summary_marks_rules_within_the_tolerance_as_met():
+    report = {"mode": "ruleset", "ruleset": "quadruped", "target_mass_ratio": 2.0, "mass_ratio": 2.001,
+              "stress_ratio": 1.0, "tolerances": {"exponent": 0.02}, "warnings": ["a leg bows"], "messages": [],
+              "rules": [{"id": "foreleg-length", "exponent": 0.36, "achieved_exponent": 0.375},
+                        {"id": "head-mass", "exponent": 0.7, "achieved_exponent": 0.65}]}
+    summary = run_summary(report, object_name="Horse_x2", source_name="Horse")
+    assert [(rule.id, rule.met) for rule in summary.rules] == [("foreleg-length", True), ("head-mass", False)]
+    assert not summary.all_met and summary.warnings == ("a leg bows",)
+    assert "1/2 rules met" in summary.line() and "1 warning" in summary.line()
+    assert type(summary).from_dict(summary.as_dict()) == summary
+
+
+def test_a_background_run_stops_when_cancelled(standing_z_up):
+    vertices, faces, _ = standing_z_up
+
+    def work(progress):
+        progress.begin("test")
+        return adapter.scale_arrays(vertices, faces, mass_ratio=3.0, modes=40, global_mode=True, progress=progress)
+
+    run = BackgroundRun(work).start()
+    deadline = time.monotonic() + 120
+    while run.progress.steps == 0 and not run.done and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert run.progress.steps > 1 and "step 1/" in run.status()
+    run.cancel()
+    assert run.status() == "allorules: cancelling…"
+    assert run.wait(30), "the run did not stop within 30 s of being cancelled"
+    assert isinstance(run.error, Cancelled) and run.result is None
+
+
+# --- the extension archive ------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def allorules_wheel(tmp_path_factory) -> Path:
+    """The allorules wheel, built offline from this checkout."""
+    folder = tmp_path_factory.mktemp("allorules-wheel")
+    completed = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                                "--no-index", "-q", "-w", str(folder)], capture_output=True, text=True)
+    assert completed.returncode == 0, completed.stderr
+    (wheel,) = folder.glob("allorules-*.whl")
+    return wheel
+
+
+def dependency_wheels() -> Path | None:
+    """Dependency wheels prepared beforehand (``python -m allorules.blender.build --fetch-wheels DIR``)."""
+    folder = os.environ.get("ALLORULES_BLENDER_WHEELS")
+    return Path(folder) if folder and Path(folder).is_dir() else None
+
+
+def check_archive(archive: Path) -> dict:
+    """The archive's manifest, after checking what Blender needs of it."""
+    with zipfile.ZipFile(archive) as opened:
+        names = set(opened.namelist())
+        manifest = tomllib.loads(opened.read("blender_manifest.toml").decode("utf-8"))
+        init = opened.read("__init__.py").decode("utf-8")
+    for key in ("schema_version", "id", "version", "name", "tagline", "maintainer", "type", "blender_version_min",
+                "license"):
+        assert manifest.get(key), f"manifest lacks {key}"
+    assert manifest["type"] == "add-on" and manifest["schema_version"] == "1.0.0"
+    assert tuple(int(part) for part in manifest["blender_version_min"].split(".")) >= (4, 2, 0)
+    assert len(manifest["tagline"]) <= 64 and not manifest["tagline"].endswith(".")
+    for wheel in manifest["wheels"]:
+        assert wheel.startswith("./wheels/") and wheel[2:] in names, f"{wheel} is not in the archive"
+    assert {name for name in names if name.startswith("wheels/")} == {wheel[2:] for wheel in manifest["wheels"]}
+    assert "def register" in init and "allorules.blender" in init
+    assert not any("/numpy-" in name for name in names), "numpy is Blender's own"
+    return manifest
+
+
+def test_build_names_missing_dependencies(allorules_wheel, tmp_path):
+    folder = tmp_path / "wheels"
+    folder.mkdir()
+    (folder / allorules_wheel.name).write_bytes(allorules_wheel.read_bytes())
+    with pytest.raises(BuildError, match=r"no wheel for .*scipy.*--fetch-wheels"):
+        build_extension(folder, tmp_path / "out.zip")
+    assert not (tmp_path / "out.zip").exists()
+    (folder / "nlopt-2.7.1-cp311-cp311-win_amd64.whl").write_bytes(b"")
+    with pytest.raises(BuildError, match="not linux-x64"):
+        build_extension(folder, tmp_path / "out.zip", require_dependencies=False)
+
+
+def test_build_an_archive_from_local_wheels(allorules_wheel, tmp_path):
+    """With the dependency wheels (ALLORULES_BLENDER_WHEELS) the whole extension, else the add-on
+    and its allorules wheel alone; either way a manifest Blender accepts."""
+    folder = tmp_path / "wheels"
+    folder.mkdir()
+    complete = dependency_wheels()
+    if complete is not None:
+        for wheel in complete.glob("*.whl"):
+            if not wheel.name.startswith("allorules-"):
+                (folder / wheel.name).symlink_to(wheel.resolve())
+    (folder / allorules_wheel.name).write_bytes(allorules_wheel.read_bytes())
+    archive = build_extension(folder, tmp_path / "allorules-blender.zip", require_dependencies=complete is not None)
+    manifest = check_archive(archive)
+    assert manifest["platforms"] == ["linux-x64"]
+    bundled = {Path(wheel).name.split("-")[0].lower() for wheel in manifest["wheels"]}
+    assert "allorules" in bundled
+    if complete is not None:
+        assert {"scipy", "trimesh", "nlopt", "pyyaml", "pluggy", "jsonschema"} <= bundled
+    with zipfile.ZipFile(archive) as opened, zipfile.ZipFile(allorules_wheel) as wheel:
+        inner = opened.read(f"wheels/{allorules_wheel.name}")
+        assert inner == allorules_wheel.read_bytes()
+        assert "allorules/blender/operators.py" in wheel.namelist()
