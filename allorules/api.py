@@ -67,13 +67,18 @@ def scale_mesh(
     plugins: Iterable[str | Path] = (),
     modes: int | None = None,
     progress: RunProgress | None = None,
+    placement: str = "ground",
+    working_vertices: int | None = None,
 ) -> Run:
     """Scale ``mesh`` (a file, a ``trimesh.Trimesh`` or a :class:`Body`) to ``mass_ratio`` times
     its body mass: biology-aware with ``ruleset`` (a built-in name, a YAML path or a loaded
     :class:`Ruleset`), or globally with ``ruleset=None``. Regions come from ``labels`` (a file)
     or the ruleset's segmenter. With ``output``, the result is written in the input's own layout
     when the run converged (an unconverged run raises :class:`ScalingError` and writes nothing);
-    the input is never overwritten. Returns the :class:`Run` (``run.report()`` is its JSON)."""
+    the input is never overwritten. The output stands where the input stood (``placement=
+    "centroid"``: its centroid in place). A mesh above ``working_vertices`` (default 8,000) is
+    scaled on a working mesh and the result carried back to every one of its vertices. Returns the
+    :class:`Run` (``run.report()`` is its JSON)."""
     registry = registry_for(list(plugins))
     if ruleset is None:
         scaling = GlobalScaling(mass_ratio)
@@ -82,7 +87,8 @@ def scale_mesh(
         scaling = RulesetScaling(loaded, mass_ratio)
     if output is not None:
         _check_output(Path(output), mesh, overwrite)
-    result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress)
+    result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress, placement=placement,
+                 working_vertices=working_vertices)
     if output is not None:
         if not result.converged:
             raise ScalingError(f"not written: the run did not reach its targets ({'; '.join(result.result.messages)})",

@@ -66,12 +66,13 @@ def build_mesh(size: int, deformed: bool):
 
 def run_case(arguments: argparse.Namespace) -> None:
     """Child process: one solve, reported as JSON on stdout."""
+    from allorules.mesh.geometry import vertex_areas
     from allorules.spectral.eigen import smallest_eigenpairs
-    from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+    from allorules.spectral.laplacian import cotangent_laplacian
 
     vertices, faces = build_mesh(arguments.size, arguments.deformed)
     stiffness = cotangent_laplacian(vertices, faces)
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     initial = None
     if arguments.initial:
         initial = np.load(arguments.initial)

@@ -20,8 +20,9 @@ import numpy as np
 import threadpoolctl
 import trimesh
 
+from allorules.mesh.geometry import vertex_areas
 from allorules.spectral.eigen import smallest_eigenpairs
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -44,7 +45,7 @@ def main() -> None:
     for name in arguments.meshes:
         mesh = trimesh.load(MESHES / f"{name}.obj", process=True, force="mesh")
         vertices, faces = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces)
-        stiffness, mass = cotangent_laplacian(vertices, faces), lumped_mass(vertices, faces)
+        stiffness, mass = cotangent_laplacian(vertices, faces), vertex_areas(vertices, faces)
         if np.any(mass <= 0):
             keep = mass > 0
             print(f"| {name} | {len(vertices):,} | – | – | {int((~keep).sum())} unreferenced vertices: skipped |")

@@ -48,7 +48,7 @@ def main() -> None:
         render_views(vertices, faces, path=folder / "warm.png")  # imports, font cache
         for views in (("side",), ("side", "three-quarter")):
             wall, cpu = timed(lambda: render_views(vertices, faces, path=folder / "a.png", views=views))
-            print(f"{len(faces):>8} {len(views):>6} {wall:>8.2f} {cpu:>8.2f}   allorules.render")
+            print(f"{len(faces):>8} {len(views):>6} {wall:>8.2f} {cpu:>8.2f}   allorules.output.render")
         if len(faces) <= 20_480:
             wall, cpu = timed(lambda: mplot3d_render(vertices, faces, folder / "b.png"))
             print(f"{len(faces):>8} {1:>6} {wall:>8.2f} {cpu:>8.2f}   mplot3d Poly3DCollection")

@@ -1,6 +1,11 @@
 """How long a whole biology-aware run takes: R = 2 (or ``--mass-ratio``) with ``quadruped``.
 
 Run: .venv/bin/python benchmarks/bench_scale.py [--modes M] [--vertices N] [--mass-ratio R] [--skip-real]
+     [--cold-bases K] [--basis-every B]
+
+``--cold-bases K`` times K cold bases of the same mesh right before its run, in the same process
+(issue 16 §4: a whole R = 2 run should cost at most 4 of them), and prints the run in those units.
+``--basis-every B`` sets how many steps one basis serves (biology_scaling.BASIS_EVERY by default).
 
 Two animals of about 8,400 vertices: the real horse of /work/shared/meshes (8,431 vertices,
 labelled automatically; skipped when the folder is absent) and the generated horse. Prints wall
@@ -25,11 +30,27 @@ from allorules.runs.ruleset_run import scale_with_ruleset
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
-def run(name: str, body: Body, modes: int | None, mass_ratio: float = 2.0) -> None:
+def cold_bases(body: Body, modes: int | None, count: int) -> float:
+    """Mean wall time of ``count`` cold bases of ``body`` (no cache, no warm start)."""
+    from allorules.spectral.basis import compute_basis
+
+    times = []
+    for _ in range(count):
+        started = time.perf_counter()
+        compute_basis(body.vertices, body.faces, modes, use_cache=False)
+        times.append(time.perf_counter() - started)
+    print(f"  {count} cold bases: {', '.join(f'{t:.2f}' for t in times)} s (mean {sum(times) / count:.2f} s)")
+    return sum(times) / count
+
+
+def run(name: str, body: Body, modes: int | None, mass_ratio: float = 2.0, basis_every: int | None = None,
+        cold: int = 0) -> None:
     registry = registry_for(None)
+    basis_time = cold_bases(body, modes, cold) if cold else None
     ruleset = load_ruleset("quadruped", registry)
     wall, cpu = time.perf_counter(), time.process_time()
-    result = scale_with_ruleset(body, ruleset, mass_ratio, registry=registry, modes=modes, use_cache=False)
+    result = scale_with_ruleset(body, ruleset, mass_ratio, registry=registry, modes=modes, use_cache=False,
+                                basis_every=basis_every)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     bases = sum(step.basis_seconds for step in result.steps)
     solves = sum(step.solve_seconds for step in result.steps)
@@ -38,6 +59,8 @@ def run(name: str, body: Body, modes: int | None, mass_ratio: float = 2.0) -> No
     print(f"  wall {wall:.1f} s (bases {bases:.1f} s, solves {solves:.1f} s), cpu {cpu:.1f} s, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"  trials per step {trials} (total {sum(trials)})")
+    if basis_time:
+        print(f"  the run = {wall / basis_time:.2f} cold bases of this mesh (goal: at most 4)")
     for index, step in enumerate(result.steps, 1):
         worst = max(step.residuals, key=lambda key: abs(step.residuals[key]))
         alphas = ", ".join(f"{region} {alpha:+.3f}" for region, alpha in step.alphas.items())
@@ -62,6 +85,8 @@ def main() -> None:
     parser.add_argument("--vertices", type=int, default=8400, help="vertices of the generated horse")
     parser.add_argument("--mass-ratio", type=float, default=2.0, help="R (default 2)")
     parser.add_argument("--skip-real", action="store_true")
+    parser.add_argument("--cold-bases", type=int, default=0, help="time this many cold bases of each mesh first")
+    parser.add_argument("--basis-every", type=int, default=None, help="steps one basis serves")
     parser.add_argument("--skip-generated", action="store_true")
     arguments = parser.parse_args()
     if not arguments.skip_real and (MESHES / "horse.obj").exists():
@@ -72,12 +97,13 @@ def main() -> None:
         started = time.perf_counter()
         body = label_quadruped(Body(prepared.vertices, prepared.faces))
         print(f"real horse labelled in {time.perf_counter() - started:.1f} s")
-        run("real horse (shared/meshes/horse.obj)", body, arguments.modes, arguments.mass_ratio)
+        run("real horse (shared/meshes/horse.obj)", body, arguments.modes, arguments.mass_ratio,
+            arguments.basis_every, arguments.cold_bases)
     if not arguments.skip_generated:
         from allorules.mesh.quadruped import generate_quadruped
 
         run("generated horse", generate_quadruped("horse", vertices=arguments.vertices).body(), arguments.modes,
-            arguments.mass_ratio)
+            arguments.mass_ratio, arguments.basis_every, arguments.cold_bases)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""A :class:`allorules.progress.RunProgress` that records what a run told it (for tests)."""
+"""A :class:`allorules.runs.progress.RunProgress` that records what a run told it (for tests)."""
 from __future__ import annotations
 
 from allorules.runs.progress import RunProgress

@@ -190,7 +190,7 @@ def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
     job = load_manifest(write_manifest(tmp_path, MANIFEST)).jobs()[0]
 
     def scale(job, folder):
-        logging.getLogger("allorules.export").warning("%s: UVs dropped", "horse.obj")
+        logging.getLogger("allorules.output.export").warning("%s: UVs dropped", "horse.obj")
         logging.getLogger("somebody.else").warning("not ours")
         return {}
 
@@ -198,7 +198,7 @@ def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
         report = run_job(job, tmp_path / "out", "fingerprint", scale)
     assert report["status"] == "done"
     messages = {record.name: record.getMessage() for record in caplog.records}
-    assert messages["allorules.export"] == f"{job.id}: horse.obj: UVs dropped"
+    assert messages["allorules.output.export"] == f"{job.id}: horse.obj: UVs dropped"
     assert messages["somebody.else"] == "not ours"
     logging.getLogger("allorules").warning("after the job")
     assert caplog.records[-1].getMessage() == "after the job"

@@ -73,7 +73,8 @@ def _check_output(result, body):
     assert sorted(report["posture"]) == ["forelimbs[0]", "forelimbs[1]", "hindlimbs[0]", "hindlimbs[1]"]
     for change in report["posture"].values():
         assert 0.0 <= change["tilt_degrees"] < 90.0 and math.isfinite(change["foot_lift"]) and math.isfinite(change["bend"])
-    assert report["warnings"] == posture_warnings(report["posture"])
+    assert set(posture_warnings(report["posture"])) <= set(report["warnings"])
+    assert all(warning.startswith("open region") for warning in set(report["warnings"]) - set(posture_warnings(report["posture"])))
 
 
 @pytest.mark.slow
@@ -110,9 +111,9 @@ def test_isometric_ruleset_is_uniform_scaling(animal, registry):
     assert len(result.steps) == 8
     progress.check(8, [step.evaluations for step in result.steps])
     body = animal.body()
-    from allorules.spectral.laplacian import lumped_mass
+    from allorules.mesh.geometry import vertex_areas
 
-    weights = lumped_mass(body.vertices, body.faces)
+    weights = vertex_areas(body.vertices, body.faces)
     centre = weights @ body.vertices / weights.sum()
     np.testing.assert_allclose(result.body.vertices, centre + 2.0 ** (1 / 3) * (body.vertices - centre),
                                atol=1e-6 * np.ptp(body.vertices))

@@ -121,6 +121,8 @@ def test_cli_names_the_runs_with_warnings(demo, monkeypatch, capsys):
     import allorules.runs.demo
 
     warned = copy.deepcopy(demo)
+    for run in warned.runs:
+        run.result["warnings"] = []
     warned.runs[-1].result["warnings"] = ["hindlimbs[0] bows by 6.0% of its length more than in the input"]
     monkeypatch.setattr(allorules.runs.demo, "run_demo", lambda *args, **kwargs: warned)
     assert main(["demo"]) == 0

@@ -9,14 +9,15 @@ import pytest
 import scipy.linalg
 import trimesh
 
+from allorules.mesh.geometry import vertex_areas
 from allorules.spectral.eigen import smallest_eigenpairs
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
 def operators(vertices, faces):
-    return cotangent_laplacian(vertices, faces), lumped_mass(vertices, faces)
+    return cotangent_laplacian(vertices, faces), vertex_areas(vertices, faces)
 
 
 def dense_reference(stiffness, mass, count):

@@ -1,4 +1,4 @@
-"""Tests of allorules.export: formats, carried-over UVs/materials, atomic and safe writing."""
+"""Tests of allorules.output.export: formats, carried-over UVs/materials, atomic and safe writing."""
 from __future__ import annotations
 
 import os
@@ -187,7 +187,7 @@ def test_missing_material_library_is_reported_not_fatal(textured_cube: Path, tmp
     (textured_cube.parent / "cube.mtl").unlink()
     source = _load(textured_cube)
     output = tmp_path / "cube.obj"
-    with caplog.at_level("WARNING", logger="allorules.export"):
+    with caplog.at_level("WARNING", logger="allorules.output.export"):
         result = save_mesh(output, source.vertices, source.faces, source=source, input_path=textured_cube)
     assert any("cube.mtl" in note and "missing" in note for note in result.notes)
     assert any("cube.mtl" in record.getMessage() for record in caplog.records)

@@ -1,4 +1,4 @@
-"""The stance through a run (allorules.posture): legs turned back upright, feet put back on the ground.
+"""The stance through a run (allorules.solve.posture): legs turned back upright, feet put back on the ground.
 
 Known answers on the generated horse: a leg turned or lifted rigidly by a known amount is put back
 exactly, and a body moved without changing its stance (uniform scaling) is left alone.

@@ -1,4 +1,4 @@
-"""Tests of allorules.render: pictures exist, have the asked size, show what they should."""
+"""Tests of allorules.output.render: pictures exist, have the asked size, show what they should."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -350,7 +350,7 @@ def test_real_horse_side_view(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------
-# HTML report (allorules.report_html)
+# HTML report (allorules.output.html)
 
 
 def test_html_report_is_self_contained(tmp_path: Path) -> None:

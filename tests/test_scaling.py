@@ -1,4 +1,4 @@
-"""The spectral algebra of allorules.scaling: equations, identity edits, unit independence."""
+"""The spectral algebra of allorules.spectral.power_laws: equations, identity edits, unit independence."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,9 +6,9 @@ import pytest
 import scipy.linalg
 import trimesh
 
-from allorules.mesh.geometry import face_areas
+from allorules.mesh.geometry import face_areas, vertex_areas
 from allorules.spectral.basis import HarmonicBasis, compute_basis, transform
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 from allorules.spectral.power_laws import (
     apply_to_mesh,
     arithmetic_region_scaling,
@@ -198,7 +198,7 @@ def test_power_law_refuses_non_positive_exponent():
 def test_arithmetic_region_scaling_is_scaling_the_vertex_set():
     # With a complete basis (all n modes) the MHT is invertible and the identity is exact.
     vertices, faces = _blob(subdivisions=2)
-    stiffness, mass = cotangent_laplacian(vertices, faces), lumped_mass(vertices, faces)
+    stiffness, mass = cotangent_laplacian(vertices, faces), vertex_areas(vertices, faces)
     eigenvalues, vectors = scipy.linalg.eigh(stiffness.toarray(), np.diag(mass))
     basis = HarmonicBasis(eigenvalues, vectors, mass)
     inside = vertices[:, 0] > 0.3

@@ -10,6 +10,7 @@ import trimesh
 
 from allorules.body import Body
 from allorules.errors import RulesetError, SegmentationError
+from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import vertex_components, vertex_graph
 from allorules.segment.labeller import label_quadruped
 from allorules.segment.labels_io import (
@@ -22,7 +23,6 @@ from allorules.segment.labels_io import (
 )
 from allorules.segment.patches import spectral_patches
 from allorules.segment.regions import QUADRUPED_REGIONS, fold_regions
-from allorules.spectral.laplacian import lumped_mass
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
@@ -43,7 +43,7 @@ def truth_body(animal) -> Body:
 
 
 def area_agreement(labels_a, labels_b, vertices, faces) -> float:
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     return float(mass[labels_a == labels_b].sum() / mass.sum())
 
 
@@ -258,7 +258,7 @@ def test_elephant_trunk_is_not_a_foot(generated):
     np.testing.assert_allclose(labelled.frame.forward, [1, 0, 0], atol=0.05)
     limbs = np.isin(labelled.labels, [QUADRUPED_REGIONS.index(n) for n in ("forelimbs", "hindlimbs")])
     head = truth.region_mask("head")
-    mass = lumped_mass(animal.vertices, animal.faces)
+    mass = vertex_areas(animal.vertices, animal.faces)
     assert mass[head & limbs].sum() < 0.01 * mass[head].sum()
     # the trunk (in the generator's head) is labelled head, all of it
     assert mass[head & labelled.region_mask("head")].sum() > 0.7 * mass[head].sum()
@@ -329,7 +329,7 @@ def test_real_quadrupeds_are_labelled(name):
     body = _load_real(name)
     labelled = label_quadruped(body)
     # All six regions present, legs in two separate parts each, up along the file's +Y.
-    mass = lumped_mass(body.vertices, body.faces)
+    mass = vertex_areas(body.vertices, body.faces)
     shares = np.bincount(labelled.labels, weights=mass, minlength=6) / mass.sum()
     assert (labelled.labels >= 0).all()
     assert np.all(shares[2:] > 0.02), dict(zip(QUADRUPED_REGIONS, shares))

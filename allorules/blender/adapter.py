@@ -7,7 +7,7 @@ mesh and keep its quads, UVs, materials and shading. No ``bpy`` here: the adapte
 used without Blender.
 
 It is one call to the run pipeline (:mod:`allorules.runs.pipeline`), the same every front end
-uses, plus putting the feet back on the input's ground.
+uses (which also stands the output where the input stood).
 """
 from __future__ import annotations
 
@@ -51,8 +51,8 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
     ``allorules scale --report`` writes it, plus ``up`` and ``forward``: the body's frame in the
-    input's coordinates). The output stands on the input's ground: it is moved along ``up`` so
-    that its lowest point is as low as the input's. Raises :class:`AllorulesError` with a
+    input's coordinates). The output stands where the input stood: the pipeline puts its feet on
+    the input's ground plane at the same place. Raises :class:`AllorulesError` with a
     one-line message when the mesh cannot be used or the run misses its targets.
     """
     import trimesh
@@ -81,11 +81,9 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
         raise ScalingError(f"the run did not reach its targets at mass ratio {mass_ratio:g}: "
                            f"{run.result.messages[0] if run.result.messages else 'see the report'}; nothing was added",
                            closest=run.result)
-    new_vertices = run.output_vertices()
+    new_vertices = run.output_vertices()      # placed by the pipeline: the feet where the input's were
     body = run.body
     frame_up = np.asarray(body.frame.up, dtype=float)
-    # the lowest point along up stays on the input's ground
-    new_vertices = new_vertices + (np.min(vertices @ frame_up) - np.min(new_vertices @ frame_up)) * frame_up
     report["up"] = frame_up.tolist()
     report["forward"] = np.asarray(body.frame.forward, dtype=float).tolist()
     return new_vertices, report

@@ -1,7 +1,7 @@
 """Running allorules off Blender's main thread: a worker thread, its progress, cancelling it.
 
 No ``bpy`` here. The scale operator, when invoked from the UI, hands its work (a function of a
-:class:`~allorules.progress.RunProgress`) to a :class:`BackgroundRun`, polls it from a modal
+:class:`~allorules.runs.progress.RunProgress`) to a :class:`BackgroundRun`, polls it from a modal
 timer, shows :meth:`BackgroundRun.status` in the status bar and calls :meth:`BackgroundRun.cancel`
 on Esc. The worker touches only numpy arrays, never Blender data. Cancelling is cooperative: the
 progress object raises :class:`Cancelled` at the run's next report (a basis mode found, a trial

@@ -1,4 +1,5 @@
-"""Options shared by several commands: ``--plugin PATH`` and the ``--up``/``--forward`` directions.
+"""Options shared by several commands: ``--plugin PATH``, the ``--up``/``--forward`` directions and
+``--working-vertices N``.
 """
 from __future__ import annotations
 
@@ -41,3 +42,17 @@ def add_direction_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the body's up direction (feet to back), e.g. +y or 0,0,1; detected when not given")
     parser.add_argument("--forward", type=parse_direction, metavar="DIR",
                         help="the body's forward direction (tail to head), e.g. +x; detected when not given")
+
+
+def add_working_vertices_argument(parser: argparse.ArgumentParser) -> None:
+    from allorules.mesh.working import (
+        MAX_WORKING_VERTICES,
+        MIN_WORKING_VERTICES,
+        WORKING_VERTICES,
+    )
+
+    parser.add_argument("--working-vertices", type=int, metavar="N",
+                        help=f"size of the working mesh the regions, the basis, the measures and the solve use (default "
+                        f"{WORKING_VERTICES}, {MIN_WORKING_VERTICES} to {MAX_WORKING_VERTICES}); a mesh at or below it is "
+                        "used as it is, a larger one is remeshed and the result carried back to every one of its "
+                        "vertices (docs/working-mesh.md)")

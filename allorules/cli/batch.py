@@ -1,6 +1,6 @@
 """``allorules batch MANIFEST.yaml``: many meshes × mass ratios × rulesets, in parallel, resumable.
 
-Runs every job of the manifest that is not finished yet (see :mod:`allorules.batch` and
+Runs every job of the manifest that is not finished yet (see :mod:`allorules.runs.batch` and
 docs/batch.md) with one worker per core (``--jobs N``), then writes ``summary.json``,
 ``summary.csv`` and ``summary.md`` in the output folder. Interrupt it at any time: running the
 same command again skips the finished jobs. Exit status 1 when a job failed.

@@ -3,7 +3,7 @@
 Generates a horse (or ``--preset``), labels its regions automatically, scales it globally and
 biology-aware (``quadruped`` ruleset) to mass ratios 0.5 and 2, and writes the meshes, a gallery
 picture, JSON reports and an offline HTML report into a fresh folder (see
-:mod:`allorules.demo` and docs/demo.md). Prints the rule table and where everything is.
+:mod:`allorules.runs.demo` and docs/demo.md). Prints the rule table and where everything is.
 """
 from __future__ import annotations
 

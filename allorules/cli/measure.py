@@ -15,7 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from allorules.cli.arguments import add_direction_arguments
+from allorules.cli.arguments import (
+    add_direction_arguments,
+    add_working_vertices_argument,
+)
 from allorules.errors import AllorulesError, MeasurementError, SegmentationError
 
 log = logging.getLogger("allorules")
@@ -43,18 +46,21 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="also write a picture: the regions in colour and the load-bearing section marked")
     add_direction_arguments(parser)
     add_plugin_argument(parser)
+    add_working_vertices_argument(parser)
     parser.set_defaults(run=run)
 
 
 def segmented_body(arguments: argparse.Namespace, ruleset, registry):
-    """The prepared body with regions from the given file or the ruleset's segmenter."""
-    from allorules.body import Body
-    from allorules.runs.pipeline import label, prepare, wanted_regions
+    """The working body (the prepared body itself up to the working size) with regions from the
+    given file or the ruleset's segmenter: what a run measures."""
+    from allorules.mesh.working import check_working_vertices
+    from allorules.runs.pipeline import label_working, prepare, wanted_regions, working
 
+    check_working_vertices(arguments.working_vertices)
     prepared = prepare(arguments.mesh)
-    labelled = label(Body(prepared.vertices, prepared.faces), registry=registry, segmenter=ruleset.segmenter,
-                     labels=arguments.segmentation or None, up=arguments.up, forward=arguments.forward,
-                     regions=wanted_regions(ruleset))
+    labelled = label_working(prepared, working(prepared, arguments.working_vertices), registry=registry,
+                             segmenter=ruleset.segmenter, labels=arguments.segmentation or None, up=arguments.up,
+                             forward=arguments.forward, regions=wanted_regions(ruleset))
     return labelled, str(arguments.segmentation) if arguments.segmentation else "automatic"
 
 

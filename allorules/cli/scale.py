@@ -22,7 +22,11 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-from allorules.cli.arguments import add_direction_arguments, add_plugin_argument
+from allorules.cli.arguments import (
+    add_direction_arguments,
+    add_plugin_argument,
+    add_working_vertices_argument,
+)
 from allorules.errors import AllorulesError, MeshError, ScalingError
 
 log = logging.getLogger("allorules")
@@ -59,10 +63,15 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--posture", choices=("keep", "upright", "free"),
                         help="the stance through the steps: keep (default; legs upright, feet on the ground, legs' lines "
                         "kept), upright (legs turned upright only) or free; overrides the ruleset's solver.posture")
+    parser.add_argument("--placement", choices=("ground", "centroid"), default="ground",
+                        help="where the output stands: ground (default: its feet on the input's ground plane at the "
+                        "same place) or centroid (its centroid where the input's was)")
     parser.add_argument("-o", "--output", metavar="OUT", help="output mesh (format from the extension)")
     parser.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON (also when it fails)")
-    parser.add_argument("--png", metavar="FILE.png", help="picture of the input and the output side by side, at true scale")
+    parser.add_argument("--png", metavar="FILE.png", help="picture of the input and the output side by side, at true "
+                        "scale (written also when the run misses its targets)")
     parser.add_argument("--modes", type=int, metavar="M", help="harmonic basis size (default 1000, at most vertices − 1)")
+    add_working_vertices_argument(parser)
     parser.add_argument("--section", metavar="REGION:FRACTION[:PART]",
                         help="load-bearing section for the stress, e.g. forelimbs:0.5 (default: the smallest limb "
                         "section away from junction and tip)")
@@ -195,7 +204,8 @@ def run(arguments: argparse.Namespace) -> int:
     try:
         result_run = pipeline.run(arguments.mesh, scaling, registry=registry, labels=arguments.segmentation or None,
                                   up=arguments.up, forward=arguments.forward, modes=arguments.modes,
-                                  use_cache=not arguments.no_cache, progress=run_progress("scaling steps"))
+                                  use_cache=not arguments.no_cache, progress=run_progress("scaling steps"),
+                                  placement=arguments.placement, working_vertices=arguments.working_vertices)
     except ScalingError as error:
         if arguments.report:
             closest = error.closest
@@ -219,12 +229,14 @@ def run(arguments: argparse.Namespace) -> int:
             raise MeshError(f"{written}: already exists; use --force to overwrite it")
     if written is not None:
         pipeline.save_output(result_run, written, overwrite=arguments.force)
-        if arguments.png:
-            pipeline.save_picture(result_run, arguments.png, output_name=written.name)
-            log.info("wrote %s", arguments.png)
+    if arguments.png:   # also for a run that missed: there must be something to look at
+        pipeline.save_picture(result_run, arguments.png,
+                              output_name=written.name if written else f"{output.name} (NOT converged, not written)")
+        log.info("wrote %s", arguments.png)
     report["output"] = None if written is None else str(written)
     write_report(arguments.report, report)
     print(summary(scaling, result_run.result, report, written or output))
+    print(result_run.quality().summary())
     if not result_run.converged:
         for message in result_run.result.messages:
             log.warning("%s", message)
@@ -260,10 +272,13 @@ def summary(scaling, result, report: dict, output: Path) -> str:
 
 def format_table(result) -> str:
     """A ruleset run as the terminal shows it: one row per rule, then the body-wide figures."""
-    rows = [("rule", "region", "measure", "target", "achieved", "error")]
+    from allorules.runs.results import EXPONENT_TOLERANCE
+
+    rows = [("rule", "region", "measure", "target exponent", "achieved exponent", "exponent error",
+             f"met (±{EXPONENT_TOLERANCE:g})")]
     for rule in result.rules:
         rows.append((rule.id, rule.region or "-", rule.measure, f"{rule.exponent:.3f}", f"{rule.achieved_exponent:.3f}",
-                     f"{rule.error:+.3f}"))
+                     f"{rule.error:+.3f}", "yes" if abs(rule.error) <= EXPONENT_TOLERANCE else "NO"))
     widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]))]
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * width for width in widths))

@@ -22,7 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from allorules.body import Body
-from allorules.cli.arguments import add_direction_arguments, add_plugin_argument
+from allorules.cli.arguments import (
+    add_direction_arguments,
+    add_plugin_argument,
+    add_working_vertices_argument,
+)
 from allorules.errors import AllorulesError, SegmentationError
 
 log = logging.getLogger("allorules")
@@ -54,6 +58,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="with --patches: merge the patches into regions as this file says")
     add_direction_arguments(parser)
     add_plugin_argument(parser)
+    add_working_vertices_argument(parser)
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     parser.set_defaults(run=run)
 
@@ -93,10 +98,11 @@ def segmenter_use(name: str, option_texts: list[str], registry):
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.mesh.working import check_working_vertices
     from allorules.output.render import render_regions
     from allorules.plugins.registry import registry_for
     from allorules.rules.model import SegmenterUse
-    from allorules.runs.pipeline import label, prepare
+    from allorules.runs.pipeline import label, prepare, working
     from allorules.segment.labels_io import write_labels, write_seg
     from allorules.segment.patches import spectral_patches
     from allorules.segment.regions import patch_body
@@ -125,20 +131,23 @@ def run(arguments: argparse.Namespace) -> int:
                                           "seed": arguments.seed})
     else:
         use = segmenter_use(arguments.segmenter or "auto-quadruped", arguments.option, registry)
+    check_working_vertices(arguments.working_vertices)
     prepared = prepare(arguments.mesh)
-    body = Body(prepared.vertices, prepared.faces)
+    work = working(prepared, arguments.working_vertices)    # as a run labels: on the working mesh
+    body = work.body()
 
     numbered = False
     if arguments.patches is not None and not arguments.merge:
         patches = spectral_patches(body.vertices, body.faces, arguments.patches, seed=arguments.seed)
-        labelled = patch_body(body, patches)
+        on_working = patch_body(body, patches)
         numbered = True
         what = f"{int(patches.max()) + 1} patches"
     else:
         # every region the segmenter found is kept: a run folds what its ruleset does not list
-        labelled = label(body, registry=registry, segmenter=use, up=arguments.up, forward=arguments.forward,
-                         regions=())
-        what = f"{len(labelled.region_names)} regions ({labelled.labelling.source})"
+        on_working = label(body, registry=registry, segmenter=use, up=arguments.up, forward=arguments.forward,
+                           regions=())
+        what = f"{len(on_working.region_names)} regions ({on_working.labelling.source})"
+    labelled = work.labels_to_user(on_working, Body(prepared.vertices, prepared.faces))   # the file is the user's
 
     write_labels(output, labelled)
     log.info("wrote %s: %s", output, what)
@@ -146,8 +155,8 @@ def run(arguments: argparse.Namespace) -> int:
         write_seg(arguments.seg, labelled)
         log.info("wrote %s", arguments.seg)
     if arguments.png:
-        picture = labelled if labelled.frame is not None else labelled.with_labels(
-            labelled.labels, labelled.region_names, frame=_frame_or_none(body, arguments))
+        picture = on_working if on_working.frame is not None else on_working.with_labels(
+            on_working.labels, on_working.region_names, frame=_frame_or_none(body, arguments))
         render_regions(picture, arguments.png, numbered=numbered, title=f"{mesh.name}: {what}")
         log.info("wrote %s", arguments.png)
     print(_summary(labelled))
@@ -168,9 +177,9 @@ def _frame_or_none(body: Body, arguments: argparse.Namespace):
 
 
 def _summary(body: Body) -> str:
-    from allorules.spectral.laplacian import lumped_mass
+    from allorules.mesh.geometry import vertex_areas
 
-    mass = lumped_mass(body.vertices, body.faces)
+    mass = vertex_areas(body.vertices, body.faces)
     total = mass.sum()
     shares = np.bincount(body.labels[body.labels >= 0], weights=mass[body.labels >= 0], minlength=len(body.region_names)) / total
     return ", ".join(f"{name} {100 * share:.1f}%" for name, share in zip(body.region_names, shares))

@@ -22,9 +22,8 @@ from allorules.measure.sections import (
     area_quantiles,
     isocontour_loops,
 )
-from allorules.mesh.geometry import face_areas
+from allorules.mesh.geometry import face_areas, vertex_areas
 from allorules.mesh.topology import face_parts, submesh
-from allorules.spectral.laplacian import lumped_mass
 
 CHEST_LIMIT_MARGIN = 0.01   # heart girth's last candidate: this share of the chest's length behind the forelimbs
 
@@ -43,7 +42,7 @@ def torso_axis(body: Body) -> np.ndarray:
             "the torso's direction is unknown: the body needs both 'chest' and 'abdomen' regions or a "
             "frame (up/forward) to measure chest girth"
         )
-    mass = lumped_mass(body.vertices, body.faces)
+    mass = vertex_areas(body.vertices, body.faces)
     centroids = {}
     for region in TORSO_REGIONS:
         mask = body.region_mask(region)

@@ -7,7 +7,7 @@ mass is a volume. The public names the rules engine calls are :func:`body_mass`,
 - Volumes: divergence theorem on the surface with every open boundary loop capped by a fan
   around its centroid (caps exist for measuring only).
 - Cross-sections: closed isocontour loops of a field that runs along the part
-  (:mod:`allorules.sections`): the part's own Fiedler vector for limbs and other regions, planes
+  (:mod:`allorules.measure.sections`): the part's own Fiedler vector for limbs and other regions, planes
   across the torso axis for the chest and abdomen.
 - Lengths: diameter of the region's skeleton; mean over the parts of a paired region (a pair
   that comes out as one piece with two feet is split into its legs). Fields and skeletons are

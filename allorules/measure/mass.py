@@ -35,7 +35,7 @@ def body_mass(body: Body) -> float:
         if not np.isfinite(volume) or volume <= 0:
             raise MeasurementError(
                 f"volume cannot be determined even after capping: got {volume:.6g}; the surface is "
-                "probably inside out or badly broken, run it through allorules.preparation.prepare_mesh"
+                "probably inside out or badly broken, run it through allorules.mesh.repair.prepare_mesh"
             )
         cache.body_mass = volume
     return cache.body_mass

@@ -89,7 +89,7 @@ def _region_faces(body: Body, region: str) -> np.ndarray:
     if body.labels is None or region not in body.region_names:
         raise MeasurementError(
             f"body has no region {region!r} (regions: {', '.join(body.region_names) or 'none'}); "
-            "label the body first (allorules.segmentation) or drop the rule that needs it"
+            "label the body first (allorules.segment) or drop the rule that needs it"
         )
     selection = body.region_face_mask(region)
     if not selection.any():

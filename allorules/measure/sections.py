@@ -6,7 +6,7 @@ its centroid a skeleton node. Sweeping the level gives a stack of loops; loops a
 levels that touch the same connected band of surface between the two levels are joined, which
 makes the *skeleton* graph, whose diameter (longest shortest path) is a length.
 
-Everything here is a plain function of vertex, face and field arrays; :mod:`allorules.measures`
+Everything here is a plain function of vertex, face and field arrays; :mod:`allorules.measure`
 applies them to the regions of a :class:`~allorules.body.Body`. The usual field is the Fiedler
 vector h₁ of the harmonic basis (:func:`fiedler_vector`), which runs along elongated shapes.
 """
@@ -20,9 +20,10 @@ import scipy.sparse as sparse
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg
 
+from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import directed_edges, face_adjacency
 from allorules.spectral.eigen import few_smallest_eigenpairs
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 
 # Meshes up to this many vertices use the reference (dense) eigensolver for h₁.
 
@@ -255,7 +256,7 @@ def fiedler_vector(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    _, vectors = few_smallest_eigenpairs(cotangent_laplacian(vertices, faces), lumped_mass(vertices, faces), 2)
+    _, vectors = few_smallest_eigenpairs(cotangent_laplacian(vertices, faces), vertex_areas(vertices, faces), 2)
     return vectors[:, 1]
 
 
@@ -285,7 +286,7 @@ def harmonic_field(vertices: np.ndarray, faces: np.ndarray, low: np.ndarray, hig
 
 def area_quantiles(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """The field's values below which the given shares ``targets`` (0…1) of the area lie (vertex-area weights)."""
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     order = np.argsort(field)
     cumulative = np.cumsum(mass[order])
     cumulative /= cumulative[-1]

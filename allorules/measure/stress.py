@@ -73,11 +73,11 @@ class StressGauge:
     """Peak stress σ = M / A measured at cross-sections frozen to the material.
 
     Without an override, the bands are every candidate of the automatic rule of
-    :func:`allorules.measures.load_bearing_section` on the body it was chosen on (all limb
+    :func:`allorules.measure.stress.load_bearing_section` on the body it was chosen on (all limb
     sections between the junction and tip margins) and A is the smallest of their areas, so the
     peak moves along the limb if the scaling moves it, while every band stays the same material
     ring (a min of smooth functions of α, which the root find can bracket). With an override
-    (:class:`allorules.measures.SectionChoice`) the single chosen section is followed.
+    (:class:`allorules.measure.stress.SectionChoice`) the single chosen section is followed.
     """
 
     bands: tuple[MaterialBand, ...]

@@ -12,6 +12,6 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, target_vertices: int) -> t
         import fast_simplification
     except ImportError:  # pragma: no cover - it is a declared dependency
         raise MeshError("decimation needs the fast-simplification package: pip install fast-simplification") from None
-    reduction = 1.0 - target_vertices / len(vertices)
-    new_vertices, new_faces = fast_simplification.simplify(vertices, faces, target_reduction=reduction)
+    # a closed mesh has two faces per vertex: aim at twice the vertex budget in faces
+    new_vertices, new_faces = fast_simplification.simplify(vertices, faces, target_count=2 * int(target_vertices))
     return np.asarray(new_vertices, dtype=np.float64), np.asarray(new_faces, dtype=np.int64)

@@ -15,6 +15,16 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
+def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """A third of the area of the faces around each vertex: the barycentric (lumped) mass matrix D
+    of METHOD §2, D_ii = Σ_{faces ∋ i} area / 3, and every area weight per vertex."""
+    areas = face_areas(vertices, faces) / 3.0
+    mass = np.zeros(len(vertices))
+    for k in range(3):
+        np.add.at(mass, faces[:, k], areas)
+    return mass
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals: n_i ∝ Σ_{faces f ∋ i} (b − a) × (c − a).
 

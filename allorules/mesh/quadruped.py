@@ -123,6 +123,9 @@ class QuadrupedParameters:
     tail_angle: float = 35.0
     torso_blend: float = 0.20
     limb_blend: float = 0.05
+    horn_length: float = 0.0      # issue 18: two horns on the head (0: none), a small feature to keep
+    horn_radius: float = 0.0      # radius at the horn's root; it tapers to 0.35 of that at the tip
+    horn_angle: float = 30.0      # outward tilt of the horns from the head's up, degrees
 
     def replace(self, **overrides: float) -> "QuadrupedParameters":
         """A copy with some parameters changed; unknown names are an error."""
@@ -406,10 +409,13 @@ def _layout(p: QuadrupedParameters) -> _Layout:
         value = getattr(p, f.name)
         if not math.isfinite(value):
             raise QuadrupedParameterError(f"quadruped parameter {f.name} must be finite, got {value}")
-        if f.name in _LENGTH_FIELDS and f.name not in ("snout_length", "snout_radius") and value <= 0:
+        if f.name in _LENGTH_FIELDS and f.name not in ("snout_length", "snout_radius", "horn_length", "horn_radius") \
+                and value <= 0:
             raise QuadrupedParameterError(f"quadruped parameter {f.name} must be positive, got {value}")
     if p.snout_length < 0 or p.snout_radius < 0:
         raise QuadrupedParameterError("snout_length and snout_radius must be ≥ 0")
+    if p.horn_length < 0 or p.horn_radius < 0 or (p.horn_length > 0) != (p.horn_radius > 0):
+        raise QuadrupedParameterError("horn_length and horn_radius must both be > 0 (horns) or both 0 (none)")
 
     chest_semi = np.array([p.chest_length, p.chest_height, p.chest_width]) / 2
     abdomen_semi = np.array([p.abdomen_length, p.abdomen_height, p.abdomen_width]) / 2
@@ -442,6 +448,8 @@ def _layout(p: QuadrupedParameters) -> _Layout:
                    min(p.head_length, p.head_height, p.head_width) / 2)
     if p.snout_length > 0:
         thinnest = min(thinnest, 0.6 * p.snout_radius)
+    if p.horn_length > 0:
+        thinnest = min(thinnest, 0.35 * p.horn_radius)
     if k_limb >= 0.9 * min(p.foreleg_radius_top, p.hindleg_radius_top, p.tail_radius * 1.5):
         raise QuadrupedParameterError("limb_blend must be smaller than the leg and tail radii")
 
@@ -469,6 +477,8 @@ def _layout(p: QuadrupedParameters) -> _Layout:
         snout_root = head_centre + 0.75 * head_semi[0] * v
         primitives.append(_cone_primitive("snout", snout_root, snout_root + p.snout_length * w,
                                           p.snout_radius, 0.6 * p.snout_radius, k_limb))
+
+    primitives.extend(_horn_primitives(p, head_centre, head_semi, head_axes, k_limb))
 
     legs: dict[str, tuple[np.ndarray, ...]] = {}
     for region, x, top_y, r_top, r_bottom in (
@@ -562,6 +572,36 @@ def _layout(p: QuadrupedParameters) -> _Layout:
     return _Layout(p, tuple(primitives), cuts, cells, legs,
                    {"forelimbs": y_fore, "hindlimbs": y_hind}, {"forelimbs": fore_reach, "hindlimbs": hind_reach},
                    {"forelimbs": fore_back, "hindlimbs": hind_front}, split_x, thinnest)
+
+
+def _horn_primitives(p: QuadrupedParameters, head_centre, head_semi, head_axes, blend) -> list[_Primitive]:
+    """Two horns (issue 18): tapered capsules rising from the top of the head, tilted outwards by
+    ``horn_angle``, their roots sunk a root radius into the head so they join it smoothly."""
+    if p.horn_length <= 0:
+        return []
+    horns = []
+    up, across = head_axes[:, 1], head_axes[:, 2]
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        on_head = head_centre + 0.75 * head_semi[1] * up + sign * 0.45 * head_semi[2] * across - 0.15 * head_semi[0] * head_axes[:, 0]
+        tilt = math.radians(p.horn_angle)
+        direction = math.cos(tilt) * up + sign * math.sin(tilt) * across
+        root = on_head - p.horn_radius * direction
+        horns.append(_cone_primitive(f"horn-{side}", root, on_head + p.horn_length * direction,
+                                     p.horn_radius, 0.35 * p.horn_radius, blend))
+    return horns
+
+
+def horn_vertices(generated: "GeneratedQuadruped") -> list[np.ndarray]:
+    """Vertex indices of each horn of a generated animal (issue 18's test of small features): the
+    vertices nearer the horn's surface than the head's, beyond the blend (empty without horns)."""
+    layout = _layout(generated.parameters)
+    by_name = {primitive.name: primitive for primitive in layout.primitives}
+    if "horn-left" not in by_name:
+        return []
+    head = by_name["head"].distance(generated.vertices)
+    blend = generated.parameters.limb_blend
+    return [np.flatnonzero((by_name[name].distance(generated.vertices) < 0.25 * blend) & (head > blend))
+            for name in ("horn-left", "horn-right")]
 
 
 def label_points(layout: _Layout, points: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@
 step and says what it changed: merge duplicate (seam) vertices, drop unreferenced vertices,
 degenerate, duplicate and non-manifold faces, orient faces consistently and outward, keep the
 largest connected part as the body and carry the small detached parts (eyes, teeth) along by the
-displacement of their nearest body vertex, optionally decimate above a vertex limit.
+displacement of their nearest body vertex.
 :func:`cap_holes` closes boundary loops for volume measurement only; output meshes keep their holes.
 
 The :class:`PreparedMesh` remembers how every vertex of the input maps to the body, so that a
@@ -22,7 +22,6 @@ import scipy.sparse.csgraph as csgraph
 from scipy.spatial import cKDTree
 
 from allorules.errors import MeshError
-from allorules.mesh.decimate import decimate
 from allorules.mesh.geometry import enclosed_volume, face_areas
 from allorules.mesh.load import load_mesh
 from allorules.mesh.topology import (
@@ -83,7 +82,7 @@ class PreparedMesh:
         return positions
 
 
-def prepare_mesh(mesh, *, max_vertices: int | None = None) -> PreparedMesh:
+def prepare_mesh(mesh) -> PreparedMesh:
     """Repair a mesh (a path or a ``trimesh.Trimesh``) into a body; see the module docstring.
 
     Raises :class:`MeshError` for an empty mesh, one without faces, non-finite coordinates or a
@@ -177,24 +176,17 @@ def prepare_mesh(mesh, *, max_vertices: int | None = None) -> PreparedMesh:
     if loops:
         repairs.append(f"found {loops} holes; they are capped for volume measurement only, never in the output")
 
-    # 6. Optional decimation: changes topology, so the output no longer maps onto the input.
+    # Map input vertices to body vertices; detached parts follow their nearest body vertex. (A large
+    # body keeps its own vertices: runs work on a working mesh made from it, allorules.mesh.working.)
     source = mesh
-    if max_vertices is not None and len(body_vertices) > max_vertices:
-        body_vertices, body_faces = decimate(body_vertices, body_faces, max_vertices)
-        repairs.append(f"decimated the body to {len(body_vertices)} vertices (limit {max_vertices})")
-        source = None
-
-    # Map input vertices to body vertices; detached parts follow their nearest body vertex.
-    source_vertex_index = -np.ones(source_count, dtype=np.int64)
     detached: list[DetachedPart] = []
-    if source is not None:
-        source_vertex_index = renumber[merged_index]
-        other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)[~in_body_face]]) if (~in_body_face).any() else np.zeros(0, np.int64)
-        other = other[renumber[other] < 0]
-        if len(other):
-            detached_source = np.flatnonzero(np.isin(merged_index, other))
-            _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
-            detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
+    source_vertex_index = renumber[merged_index]
+    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)[~in_body_face]]) if (~in_body_face).any() else np.zeros(0, np.int64)
+    other = other[renumber[other] < 0]
+    if len(other):
+        detached_source = np.flatnonzero(np.isin(merged_index, other))
+        _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
+        detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
     for line in repairs:
         log.debug("prepare: %s", line)
     return PreparedMesh(

@@ -115,7 +115,11 @@ def submesh(vertices: np.ndarray, faces: np.ndarray, face_selection: np.ndarray)
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """Directed edges (a, b) used by exactly one face, in that face's winding."""
     directed = directed_edges(faces)
-    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+    if len(directed) == 0:
+        return directed
+    # one integer key per undirected edge: a 1-D unique is ~10x faster than unique(axis=0), same edges
+    keys = np.minimum(directed[:, 0], directed[:, 1]) * (int(directed.max()) + 1) + np.maximum(directed[:, 0], directed[:, 1])
+    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     return directed[counts[inverse.ravel()] == 1]
 
 

@@ -7,7 +7,7 @@ the input) is never overwritten unless the caller asks.
 
 When the caller passes ``source`` (the input's ``trimesh.Trimesh`` as loaded, with its UVs and
 material) and positions for the *source's* vertex layout (same vertex count and faces — see
-:meth:`allorules.preparation.PreparedMesh.source_positions`), the output keeps the input's
+:meth:`allorules.mesh.repair.PreparedMesh.source_positions`), the output keeps the input's
 texture coordinates and material references, with normals recomputed for the new shape:
 
 * OBJ from an OBJ input: the input file is rewritten line by line — new ``v`` positions, each
@@ -36,7 +36,7 @@ from allorules.errors import MeshError
 from allorules.files import _same_file, atomic_path, atomic_write
 from allorules.mesh.geometry import face_normals, vertex_normals
 
-log = logging.getLogger("allorules.export")
+log = logging.getLogger("allorules.output.export")
 
 SUPPORTED_FORMATS = (".obj", ".ply", ".stl", ".glb", ".off")
 

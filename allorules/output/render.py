@@ -694,7 +694,7 @@ def plot_spectrum(
     size: tuple[int, int] = (800, 760),
 ) -> Path:
     """The paper's Figure 4: |r̃_i| against λ_i, semilog (top) and log-log (bottom), with the
-    fitted power law r̃ = exp(intercept) · λ^slope (natural-log fit, as ``allorules.spectrum``).
+    fitted power law r̃ = exp(intercept) · λ^slope (natural-log fit, as ``allorules.spectral.spectrum``).
 
     ``coefficients`` is the radial spectrum (m,) or the coefficients (m, 3) (their row norms are
     used). Modes with λ ≤ 0 (the constant mode) or r̃ = 0 cannot be drawn on log axes and are left
@@ -740,7 +740,7 @@ def render_regions(body: Body, path, *, numbered: bool = False, title: str | Non
     ``numbered`` prints each region's index on it (for patches: the ids a merge file uses), at
     the region's vertex nearest to its area centroid.
     """
-    from allorules.spectral.laplacian import lumped_mass
+    from allorules.mesh.geometry import vertex_areas
 
     if body.labels is None:
         raise SegmentationError("the body has no labels to draw; segment it first")
@@ -748,7 +748,7 @@ def render_regions(body: Body, path, *, numbered: bool = False, title: str | Non
     colors = region_colors(body.labels, body.region_names)
     annotations = []
     if numbered:
-        mass = lumped_mass(body.vertices, body.faces)
+        mass = vertex_areas(body.vertices, body.faces)
         for index in range(len(body.region_names)):
             members = np.flatnonzero(body.labels == index)
             if len(members) == 0:

@@ -66,7 +66,29 @@ class SolverSettings:
     scale_bounds: tuple[float, float] = (0.5, 2.0)
     alpha_bounds: tuple[float, float] = (-1.0, 1.0)
     transform: str = "per-axis"     # METHOD §5, in the animal's own axes; or "per-mode" (docs/biology-scaling.md)
-    posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.posture)
+    posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.solve.posture)
+    detail_cutoff: float | None = None   # Eq. 9 on the base only, detail kept (power_laws.DetailLayer); None: every mode
+
+
+OPEN_REGION_SETTINGS = ("isometric", "free")
+
+
+@dataclass(frozen=True)
+class OpenRegions:
+    """What regions no rule measures do (METHOD §10): ``isometric`` (the default) holds each such
+    region's ``measures`` at their isometric exponents as soft energy terms of ``weight``, which a
+    rule of the ruleset on that region replaces; ``free`` leaves the region's α to the solver (the
+    paper). ``regions`` overrides the default per region (appendages such as tail, ears, horns,
+    trunk included, when a segmenter finds them). The terms: allorules/solve/open_regions.py."""
+
+    default: str = "isometric"
+    weight: float = 0.01
+    measures: tuple[str, ...] = ("length", "mass")
+    regions: Mapping[str, str] = field(default_factory=dict)
+    source: str = ""
+
+    def setting(self, region: str) -> str:
+        return self.regions.get(region, self.default)
 
 
 @dataclass(frozen=True)
@@ -100,6 +122,7 @@ class Ruleset:
     plugins: tuple[Path, ...] = ()
     segmenter: SegmenterUse = SegmenterUse()
     extends: tuple[str, ...] = ()   # the chain of rulesets this one was built on, nearest first
+    open_regions: OpenRegions = OpenRegions()
 
     def rule(self, rule_id: str) -> Rule:
         for rule in self.rules:
@@ -152,8 +175,13 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "algorithm": solver.algorithm, "relative_tolerance": solver.relative_tolerance,
         "parameter_tolerance": solver.parameter_tolerance, "max_evaluations": solver.max_evaluations,
         "scale_bounds": list(solver.scale_bounds), "alpha_bounds": list(solver.alpha_bounds),
-        "transform": solver.transform, "posture": solver.posture,
+        "transform": solver.transform, "posture": solver.posture, "detail_cutoff": solver.detail_cutoff,
     }
+    opened = ruleset.open_regions
+    document["open_regions"] = {"default": opened.default, "weight": opened.weight, "measures": list(opened.measures),
+                                "regions": dict(opened.regions)}
+    if opened.source:
+        document["open_regions"]["source"] = opened.source
     return document
 
 

@@ -12,7 +12,7 @@ import difflib
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
 from allorules.errors import RulesetError, RulesetProblems, SourceLocation
 from allorules.plugins.specs import parameter_problems
@@ -20,8 +20,10 @@ from allorules.rules.find import _registry, find_ruleset, looks_like_path, rules
 from allorules.rules.located_yaml import LocatedDocument, _kind, read_located_yaml
 from allorules.rules.model import (
     DEFAULT_SEGMENTER,
+    OPEN_REGION_SETTINGS,
     BodyMassTerm,
     ConstraintUse,
+    OpenRegions,
     Rule,
     Ruleset,
     SegmenterUse,
@@ -87,6 +89,8 @@ class _Merged:
     body_mass_where: dict[str, SourceLocation] = field(default_factory=dict)
     solver: dict[str, Any] = field(default_factory=dict)
     solver_where: dict[str, SourceLocation] = field(default_factory=dict)
+    open_regions: dict[str, Any] = field(default_factory=dict)
+    open_regions_where: dict[str, SourceLocation] = field(default_factory=dict)
     rules: dict[str, _Entry] = field(default_factory=dict)
     constraints: dict[str, _Entry] = field(default_factory=dict)
     plugins: list[tuple[Path, SourceLocation]] = field(default_factory=list)
@@ -151,6 +155,7 @@ def _apply(document: LocatedDocument, merged: _Merged) -> None:
         for key, value in data.get(section, {}).items():
             target[key] = value
             target_where[key] = document.at(section, key)
+    _apply_open_regions(document, merged)
     for entry_path in data.get("plugins", []):
         location = document.at("plugins", data["plugins"].index(entry_path))
         plugin_path = (document.path.parent / Path(entry_path).expanduser()).resolve()
@@ -324,6 +329,7 @@ def _build(merged: _Merged, registry: "PluginRegistry") -> Ruleset:
 
     # solver
     solver = _build_solver(merged, problems)
+    open_regions = _build_open_regions(merged, measures, problems)
 
     segmenter = _build_segmenter(merged, segmenters, problems, failed_note)
     if problems:
@@ -341,6 +347,7 @@ def _build(merged: _Merged, registry: "PluginRegistry") -> Ruleset:
         plugins=tuple(p for p, _ in merged.plugins),
         segmenter=segmenter,
         extends=tuple(merged.chain),
+        open_regions=open_regions,
     )
 
 
@@ -409,6 +416,68 @@ def _failed_plugins_note(registry: "PluginRegistry") -> str:
     return f"; plugins that failed to load: {', '.join(failed)}" if failed else ""
 
 
+def _apply_open_regions(document: LocatedDocument, merged: _Merged) -> None:
+    """Lay a document's ``open_regions`` over the inherited one: a word (isometric / free) sets the
+    default; a mapping merges key by key (``regions`` region by region)."""
+    value = document.data.get("open_regions")
+    if value is None:
+        return
+    if isinstance(value, str):
+        merged.open_regions["default"] = value
+        merged.open_regions_where["default"] = document.at("open_regions")
+        return
+    for key, item in value.items():
+        if key == "regions" and isinstance(item, dict):
+            regions = dict(merged.open_regions.get("regions", {}))
+            for region, setting in item.items():
+                regions[region] = setting
+                merged.open_regions_where[f"regions.{region}"] = document.at("open_regions", "regions", region)
+            merged.open_regions["regions"] = regions
+        else:
+            merged.open_regions[key] = item
+            merged.open_regions_where[key] = document.at("open_regions", key)
+
+
+def _build_open_regions(merged: _Merged, measures: Mapping[str, Any], problems: list[RulesetError]) -> OpenRegions:
+    values, where = merged.open_regions, merged.open_regions_where
+    whole = SourceLocation(merged.path, 1)
+    settings: dict[str, Any] = {}
+    choices = " or ".join(repr(choice) for choice in OPEN_REGION_SETTINGS)
+    if "default" in values:
+        if values["default"] in OPEN_REGION_SETTINGS:
+            settings["default"] = values["default"]
+        else:
+            problems.append(RulesetError(f"open_regions {values['default']!r} is not {choices} (isometric: regions no "
+                                         "rule measures keep their proportions; free: the solver may change them)",
+                                         where.get("default", whole)))
+    if "weight" in values and _check_finite(values["weight"], "open_regions.weight", where.get("weight", whole), problems):
+        settings["weight"] = float(values["weight"])
+    if "measures" in values:
+        names = []
+        for name in values["measures"]:
+            spec = measures.get(name)
+            if spec is None or not spec.accepts_region:
+                known = sorted(n for n, m in measures.items() if m.accepts_region)
+                close = difflib.get_close_matches(str(name), known, n=1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                problems.append(RulesetError(f"open_regions.measures: {name!r} is not a measure of a region; {hint}"
+                                             f"known: {', '.join(known)}", where.get("measures", whole)))
+            else:
+                names.append(name)
+        settings["measures"] = tuple(names)
+    regions = {}
+    for region, setting in values.get("regions", {}).items():
+        if setting in OPEN_REGION_SETTINGS:
+            regions[region] = setting
+        else:
+            problems.append(RulesetError(f"open_regions.regions.{region}: {setting!r} is not {choices}",
+                                         where.get(f"regions.{region}", whole)))
+    settings["regions"] = regions
+    if "source" in values:
+        settings["source"] = _text(values["source"])
+    return replace(OpenRegions(), **settings)
+
+
 def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettings:
     defaults = SolverSettings()
     values = dict(merged.solver)
@@ -456,6 +525,16 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
             problems.append(RulesetError(f"solver.posture {values['posture']!r} is not one of 'keep' (legs upright and "
                                          "feet on the ground), 'upright' (legs upright) or 'free' (as Eq. 9 leaves them)",
                                          where.get("posture", whole)))
+    if "detail_cutoff" in values:
+        cutoff = values["detail_cutoff"]
+        if cutoff is None:
+            settings["detail_cutoff"] = None
+        elif _check_finite(cutoff, "solver.detail_cutoff", where.get("detail_cutoff", whole), problems):
+            if float(cutoff) > 0:
+                settings["detail_cutoff"] = float(cutoff)
+            else:
+                problems.append(RulesetError(f"solver.detail_cutoff must be a positive number of modes (or null), not "
+                                             f"{cutoff!r}", where.get("detail_cutoff", whole)))
     if "algorithm" in values:
         algorithm = values["algorithm"]
         try:

@@ -65,6 +65,15 @@ def _schema_error(document: LocatedDocument, error) -> RulesetError:
                 return _schema_error(document, inner[0])
         return RulesetError(f"segmenter must be a segmenter's name or a mapping with 'name' and 'options', "
                             f"not {_kind(value)}", location)
+    if validator == "anyOf" and keys and keys[0] == "open_regions":   # a word or a mapping
+        if isinstance(value, dict):
+            branch = [sub for sub in error.context if sub.schema_path and sub.schema_path[0] == 1]
+            if branch:
+                return _schema_error(document, min(branch, key=lambda sub: len(sub.absolute_path) * -1))
+        return RulesetError(f"{what} must be 'isometric', 'free' or a mapping (default, weight, measures, regions, "
+                            f"source), not {_kind(value)}", location)
+    if validator == "anyOf" and keys and keys[-1] == "detail_cutoff":
+        return RulesetError(f"{what} must be a positive number of modes or null, not {_kind(value)}", location)
     if validator == "required":
         missing = [key for key in error.validator_value if not isinstance(value, dict) or key not in value]
         return RulesetError(f"{what} is missing {', '.join(repr(m) for m in missing)}; add it", location)
@@ -97,6 +106,8 @@ def _schema_error(document: LocatedDocument, error) -> RulesetError:
     if validator in ("minItems", "maxItems"):
         return RulesetError(f"{what} must be a list of exactly two numbers [lower, upper], not {len(value)} items",
                             location)
+    if validator == "enum":
+        return RulesetError(f"{what} {value!r} is not one of {', '.join(repr(v) for v in error.validator_value)}", location)
     if validator == "uniqueItems":
         duplicates = sorted({str(item) for item in value if value.count(item) > 1})
         return RulesetError(f"{what} lists {', '.join(duplicates)} more than once; list each once", location)

@@ -1,6 +1,6 @@
 """The demo: the whole method on the built-in generated quadruped, in one folder.
 
-:func:`run_demo` generates a quadruped (:mod:`allorules.quadruped`), labels its six regions with
+:func:`run_demo` generates a quadruped (:mod:`allorules.mesh.quadruped`), labels its six regions with
 the automatic labeller (and says how well they agree with the generator's own regions), scales
 it globally (paper §3.1) and biology-aware with the ``quadruped`` ruleset (§3.3) to mass ratios
 0.5 and 2, and writes into a fresh folder:
@@ -146,13 +146,13 @@ def choose_folder(output: str | Path | None, *, force: bool = False) -> Path:
 def label_agreement(generated, labelled) -> float:
     """Share of the surface (by vertex area) where the automatic labels match the generator's
     regions (its tail counted as abdomen, as the labeller does)."""
+    from allorules.mesh.geometry import vertex_areas
     from allorules.segment.regions import NEIGHBOUR_REGION
-    from allorules.spectral.laplacian import lumped_mass
 
     truth = np.array([NEIGHBOUR_REGION.get(generated.region_names[label], generated.region_names[label])
                       if label >= 0 else "" for label in generated.labels])
     found = np.array([labelled.region_names[label] if label >= 0 else "?" for label in labelled.labels])
-    area = lumped_mass(labelled.vertices, labelled.faces)
+    area = vertex_areas(labelled.vertices, labelled.faces)
     return float(area[truth == found].sum() / area.sum())
 
 
@@ -209,7 +209,7 @@ def run_demo(
 
     ``quick`` uses a coarser animal and fewer modes (``QUICK_VERTICES``/``QUICK_MODES``) unless
     ``vertices``/``modes`` are given. Steps and timings are logged at INFO level; the basis and
-    solver show bars on a terminal (:mod:`allorules.progress`).
+    solver show bars on a terminal (:mod:`allorules.runs.progress`).
     """
     from allorules.runs.progress import Steps
 

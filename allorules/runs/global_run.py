@@ -1,7 +1,7 @@
 """Global allometric scaling runs (paper §3.1, METHOD §4): from a mass ratio to a mesh.
 
 The user asks for a mass ratio R. Each step solves for the global allometric exponent α and the
-isometric factor s of Eq. 4 (:func:`allorules.scaling.global_allometric`) so that the body's mass
+isometric factor s of Eq. 4 (:func:`allorules.spectral.power_laws.global_allometric`) so that the body's mass
 changes by the step's ratio r and its peak stress σ = M/A stays as it was:
 
 * For a trial α the mesh is reconstructed with s = 1 and measured: M(1, α), σ(1, α).
@@ -14,9 +14,9 @@ A ratio beyond 1.1 up (0.9 down) goes in n equal steps r = R^(1/n), the harmonic
 on each step's mesh (warm-started from the previous one), as in the paper.
 
 **Where stress is measured.** The candidate load-bearing cross-sections are chosen ONCE, on the
-input body, by the rule of :func:`allorules.measures.load_bearing_section` (every limb section
+input body, by the rule of :func:`allorules.measure.stress.load_bearing_section` (every limb section
 between the junction and tip margins; or only the user's
-:class:`~allorules.measures.SectionChoice`), and then followed as material bands: the same
+:class:`~allorules.measure.stress.SectionChoice`), and then followed as material bands: the same
 isocontour level of the same limb field on the same vertices (:class:`MaterialBand`). The mesh
 keeps its connectivity, so each contour crosses the same edges at the same parameters and only
 moves with them. A is the smallest band's area (:class:`StressGauge`). Stress before and after
@@ -25,7 +25,7 @@ re-chosen from new contours; the peak may still move from one band to another if
 change moves it. (Re-choosing from scratch on the output is reported separately, as an
 independent check.)
 
-Mass is the enclosed volume of the capped body (:func:`allorules.measures.body_mass`).
+Mass is the enclosed volume of the capped body (:func:`allorules.measure.mass.body_mass`).
 """
 from __future__ import annotations
 
@@ -98,10 +98,10 @@ def scale_globally(
     """Scale ``body`` so that its mass changes by ``mass_ratio`` with peak stress unchanged.
 
     ``stress`` (Body → σ) replaces the default, which freezes the load-bearing limb section of
-    the input (``section``: an optional :class:`allorules.measures.SectionChoice`) and follows it
+    the input (``section``: an optional :class:`allorules.measure.stress.SectionChoice`) and follows it
     (:class:`StressGauge`); the default needs a labelled body with a limb region. ``mass``
-    replaces :func:`allorules.measures.body_mass`. ``progress`` is told of the steps, each basis
-    and each trial (:class:`allorules.progress.RunProgress`). Raises :class:`ScalingError` (with
+    replaces :func:`allorules.measure.mass.body_mass`. ``progress`` is told of the steps, each basis
+    and each trial (:class:`allorules.runs.progress.RunProgress`). Raises :class:`ScalingError` (with
     ``closest`` = the partial result) when a step's α cannot be found.
     """
     target = check_mass_ratio(mass_ratio)

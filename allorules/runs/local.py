@@ -31,7 +31,7 @@ def scale_region(
     u'_i = sgn(u_i)|u_i|^(1 + α·G(u_i, u_seg,i)); α > 0 shrinks what the region shares with the
     body, α < 0 grows it, smoothly, without a seam. ``form``: ``"per-axis"`` (default, METHOD §5, in
     the animal's own axes) or ``"per-mode"`` (on each mode's coefficient vector length), see
-    :class:`allorules.solver.StepTransform`. ``arithmetic_factor`` = f instead applies the
+    :class:`allorules.solve.transform.StepTransform`. ``arithmetic_factor`` = f instead applies the
     paper's bad example x̃' = x̃ + (f − 1)·x̃_seg (the region's vertices scaled by f about the
     body's centroid): for comparison only, it tears the region's boundary open.
     """

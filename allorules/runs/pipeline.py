@@ -1,23 +1,28 @@
-"""The run pipeline: prepare → label → scale → save, with the report. Every front end calls it:
+"""The run pipeline: prepare → label → scale → place → save, with the report. Every front end calls it:
 ``allorules scale``, ``measure`` and ``segment``, batch runs, the demo, the Python API
 (:mod:`allorules.api`) and the Blender add-on.
 
 1. :func:`prepare`: the user's file (or a ``trimesh.Trimesh``, or a :class:`~allorules.body.Body`)
-   becomes a repaired body that remembers how it maps back onto the input (METHOD §1).
+   becomes a repaired body that remembers how it maps back onto the input (METHOD §1); a body
+   above the working size gets a working mesh (:func:`working`, METHOD §9), on which everything
+   else happens and from which the result is carried back to every vertex of the user's body.
 2. :func:`label`: regions from a labels file (allorules JSON or Princeton ``.seg``) or from a
    segmenter through the plugin hook (the ruleset's, ``auto-quadruped`` by default); then regions
    nobody asked for are folded into their neighbour (:func:`allorules.segment.regions.fold_regions`).
    The body's :class:`~allorules.body.Labelling` says which file or segmenter labelled it.
 3. :func:`scale`: one of the four kinds of scaling (:data:`Scaling`).
-4. :func:`save_output` / :func:`save_picture`: the output in the input's own vertex layout (UVs,
-   materials and detached parts kept) and a before/after picture; :meth:`Run.report` is the JSON.
+4. :func:`place`: the output stands where the input stood: its feet on the input's ground plane at
+   the same place (METHOD §10; ``placement="centroid"`` keeps the centroid in place instead).
+5. :func:`save_output` / :func:`save_picture`: the output in the input's own vertex layout (UVs,
+   materials and detached parts kept) and a before/after picture; :meth:`Run.report` is the JSON,
+   with the quality measures an artist would look for (:mod:`allorules.measure.quality`).
 
-:func:`run` does 1-3 and returns a :class:`Run`.
+:func:`run` does 1-4 and returns a :class:`Run`.
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Union
 
@@ -26,21 +31,33 @@ import numpy as np
 from allorules import __version__
 from allorules.body import Body, Labelling
 from allorules.errors import MeasurementError, SegmentationError
+from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
+from allorules.measure.quality import QualityReport, quality_report
 from allorules.measure.stress import SectionChoice, peak_stress
-from allorules.mesh.geometry import count_flipped_faces
+from allorules.mesh.geometry import count_flipped_faces, vertex_areas
 from allorules.mesh.repair import PreparedMesh, prepare_mesh
+from allorules.mesh.transfer import Binding, bind, carry_deformation, carry_labels
+from allorules.mesh.working import (
+    WorkingMesh,
+    check_working_vertices,
+    make_working_mesh,
+)
 from allorules.output.export import SaveResult, save_mesh
 from allorules.plugins.registry import PluginRegistry, registry_for
 from allorules.rules.model import Ruleset, SegmenterUse
 from allorules.runs.global_run import scale_globally, scale_globally_raw
 from allorules.runs.local import scale_region, seam_strain
 from allorules.runs.progress import RunProgress
-from allorules.runs.results import LocalResult, RawGlobalResult, ScalingResult
+from allorules.runs.results import (
+    EXPONENT_TOLERANCE,
+    LocalResult,
+    RawGlobalResult,
+    ScalingResult,
+)
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.segment.labels_io import read_labels, read_seg
 from allorules.segment.regions import QUADRUPED_REGIONS, fold_regions
-from allorules.spectral.laplacian import lumped_mass
 
 log = logging.getLogger("allorules")
 
@@ -87,6 +104,7 @@ class LocalScaling:
 
 
 Scaling = Union[GlobalScaling, RulesetScaling, RawGlobalScaling, LocalScaling]
+PLACEMENTS = ("ground", "centroid")
 Result = Union[ScalingResult, RawGlobalResult, LocalResult]
 
 
@@ -105,6 +123,68 @@ def prepare(source: str | Path | Any) -> PreparedMesh:
     for repair in prepared.repairs:
         log.info("prepare: %s", repair)
     return prepared
+
+
+@dataclass(frozen=True)
+class Working:
+    """The mesh a run works on (:class:`~allorules.mesh.working.WorkingMesh`) and where each vertex
+    of the user's body sits on it (``binding``; ``None`` when the body is used as it is)."""
+
+    mesh: WorkingMesh
+    binding: Binding | None
+
+    def body(self) -> Body:
+        return Body(self.mesh.vertices, self.mesh.faces)
+
+    def from_user(self, user: Body) -> Body:
+        """The working body with the regions of a labelled user body (labels carried across)."""
+        if self.binding is None:
+            return user
+        to_user = bind(self.mesh.vertices, user.vertices, user.faces)
+        labels = carry_labels(to_user, user.labels)
+        return Body(self.mesh.vertices, self.mesh.faces, labels, user.region_names, user.frame, user.labelling)
+
+    def labels_to_user(self, body: Body, user: Body) -> Body:
+        """The user's body with the working body's regions (each user vertex takes its working
+        triangle's)."""
+        if self.binding is None:
+            return body
+        return user.with_labels(carry_labels(self.binding, body.labels), body.region_names, body.labelling, body.frame)
+
+    def to_user(self, working_before: np.ndarray, working_after: np.ndarray, user_before: np.ndarray) -> np.ndarray:
+        """The user's vertices after the working mesh moved (its detail moves and turns with it)."""
+        if self.binding is None:
+            return np.asarray(working_after, dtype=float)
+        return carry_deformation(self.binding, working_before, working_after, user_before)
+
+    def report(self) -> dict[str, Any]:
+        mesh = self.mesh
+        return {"method": mesh.method, "vertices": int(len(mesh.vertices)), "target_vertices": int(mesh.target_vertices),
+                "user_vertices": int(mesh.source_vertices), "seconds": round(float(mesh.seconds), 3),
+                "quality": {key: round(float(value), 4) for key, value in mesh.quality.items()}}
+
+
+def working(prepared: PreparedMesh, vertices: int | None = None) -> Working:
+    """The working mesh of a prepared body: the body itself at or below ``vertices`` (default
+    :data:`allorules.mesh.working.WORKING_VERTICES`), else a remesh of that size, bound to it."""
+    mesh = make_working_mesh(prepared.vertices, prepared.faces, vertices,
+                             name=str(prepared.source_path) if prepared.source_path else "mesh")
+    binding = None if mesh.is_source else bind(prepared.vertices, mesh.vertices, mesh.faces)
+    return Working(mesh, binding)
+
+
+def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegistry,
+                  segmenter: SegmenterUse | None = None, labels: str | Path | None = None, given: Body | None = None,
+                  up: np.ndarray | None = None, forward: np.ndarray | None = None,
+                  regions: Iterable[str] = QUADRUPED_REGIONS) -> Body:
+    """The working body with regions: from a labels file or a ``given`` labelled body (both for
+    the user's prepared body, carried across to the working mesh), else from the segmenter on the
+    working mesh itself; regions not among ``regions`` fold into their neighbour."""
+    if labels is None and given is None:
+        return label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=regions)
+    user = given if labels is None else label(Body(prepared.vertices, prepared.faces), registry=registry,
+                                              labels=labels, up=up, forward=forward, regions=())
+    return fold_regions(work.from_user(user), tuple(regions))
 
 
 def wanted_regions(ruleset: Ruleset | None) -> tuple[str, ...]:
@@ -194,27 +274,55 @@ def scale(body: Body, scaling: Scaling, *, registry: PluginRegistry, modes: int 
     raise TypeError(f"not a kind of scaling: {scaling!r}")
 
 
+def place(body: Body, result: Result, placement: str = "ground") -> tuple[Result, str]:
+    """The result moved rigidly so that its feet stand on ``body``'s ground plane at the same place
+    (``"ground"``), or left with its centroid in place (``"centroid"``). Returns the result and how
+    it was placed; a body whose up direction is unknown (no labels, no frame) keeps its centroid,
+    and says so."""
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, not {placement!r}")
+    if placement == "centroid":
+        return result, "centroid"
+    try:
+        contact = ground_contact(body)
+    except GroundError as error:
+        log.info("placement: %s; the output keeps its centroid in place", error)
+        return result, "centroid (up unknown)"
+    result.body = result.body.with_vertices(place_on_ground(body, result.body.vertices, contact=contact))
+    return result, "ground"
+
+
 # ---------------------------------------------------------------------------------------------
 # A run
 
 
 @dataclass
 class Run:
-    """One run: the prepared input, its labelled body, what was asked and what came out."""
+    """One run: the prepared input, its working mesh, the labelled working body, what was asked and
+    what came out (``result.body``: the working body scaled and placed)."""
 
     prepared: PreparedMesh
     body: Body
     scaling: Scaling
     result: Result
     labels_file: Path | None = None
+    placement: str = "ground"            # how the output was placed (see :func:`place`)
+    working: Working | None = None       # None: the prepared body itself
+    _quality: QualityReport | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:
         return bool(self.result.converged)
 
+    def body_vertices(self) -> np.ndarray:
+        """The scaled positions of the user's prepared body (carried from the working mesh)."""
+        if self.working is None:
+            return self.result.body.vertices
+        return self.working.to_user(self.body.vertices, self.result.body.vertices, self.prepared.vertices)
+
     def output_vertices(self) -> np.ndarray:
         """The scaled positions of every vertex of the input, in the input's own order."""
-        return self.prepared.source_positions(self.result.body.vertices)
+        return self.prepared.source_positions(self.body_vertices())
 
     def report(self) -> dict[str, Any]:
         """The run as JSON: the input, its repairs, who labelled it, and the result's figures."""
@@ -225,12 +333,23 @@ class Run:
             "vertices": int(len(prepared.vertices)),
             "faces": int(len(prepared.faces)),
             "repairs": list(prepared.repairs),
+            "working_mesh": self.working.report() if self.working else None,
             "labels": _labels_report(self.body),
         }
         document.update(self.result.as_dict())
         if isinstance(self.scaling, GlobalScaling):
             document.update(_independent_check(self.body, self.result))
+        document["placement"] = self.placement
+        document["quality"] = self.quality().as_dict()
         return document
+
+    def quality(self) -> QualityReport:
+        """What an artist would look for in the output (flipped faces, self-intersections, lumps,
+        small features, legs, rules met), measured once."""
+        if self._quality is None:
+            self._quality = quality_report(self.body, self.result.body.vertices, rules=getattr(self.result, "rules", None),
+                                           tolerance=EXPONENT_TOLERANCE)
+        return self._quality
 
 
 def run(
@@ -245,23 +364,31 @@ def run(
     modes: int | None = None,
     use_cache: bool = True,
     progress: RunProgress | None = None,
+    placement: str = "ground",
+    working_vertices: int | None = None,
 ) -> Run:
-    """Prepare, label and scale ``source`` (a mesh file, a ``trimesh.Trimesh`` or a
+    """Prepare, label, scale and place ``source`` (a mesh file, a ``trimesh.Trimesh`` or a
     :class:`Body`; a labelled ``Body`` keeps its labels). The segmenter is ``segmenter``, else the
-    ruleset's, else ``auto-quadruped``; ``labels`` (a file) replaces it."""
+    ruleset's, else ``auto-quadruped``; ``labels`` (a file, for the user's prepared body) replaces
+    it. ``placement``: ``"ground"`` (the output's feet where the input's were) or ``"centroid"``.
+    ``working_vertices``: the working mesh's size (default
+    :data:`allorules.mesh.working.WORKING_VERTICES`; a body at or below it is used as it is)."""
     registry = registry if registry is not None else registry_for(None)
+    check_working_vertices(working_vertices)            # before any work
     ruleset = scaling.ruleset if isinstance(scaling, RulesetScaling) else None
     prepared = prepare(source)
-    body = Body(prepared.vertices, prepared.faces)
-    if isinstance(source, Body) and source.labels is not None and labels is None:
-        body = fold_regions(source, wanted_regions(ruleset))
-    elif isinstance(scaling, RawGlobalScaling) and labels is None:
-        pass   # Eq. 4 once measures nothing: no regions needed
+    work = working(prepared, working_vertices)
+    given = source if isinstance(source, Body) and source.labels is not None else None
+    if isinstance(scaling, RawGlobalScaling) and labels is None and given is None:
+        body = work.body()                              # Eq. 4 once measures nothing: no regions needed
     else:
-        body = label(body, registry=registry, segmenter=segmenter or (ruleset.segmenter if ruleset else None),
-                     labels=labels, up=up, forward=forward, regions=wanted_regions(ruleset))
+        body = label_working(prepared, work, registry=registry, segmenter=segmenter or (ruleset.segmenter if ruleset
+                             else None), labels=labels, given=given, up=up, forward=forward,
+                             regions=wanted_regions(ruleset))
     result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
-    return Run(prepared, body, scaling, result, Path(labels) if labels else None)
+    result, placed = place(body, result, placement)
+    return Run(prepared, body, scaling, result, Path(labels) if labels else None, placed,
+               None if work.binding is None else work)
 
 
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:
@@ -272,7 +399,7 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
         saved = save_mesh(path, run.output_vertices(), np.asarray(prepared.source.faces), source=prepared.source,
                           input_path=prepared.source_path, overwrite=overwrite)
     else:
-        saved = save_mesh(path, run.result.body.vertices, prepared.faces, input_path=prepared.source_path,
+        saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
     for note in saved.notes:
         log.info("export: %s", note)
@@ -296,7 +423,7 @@ def _labels_report(body: Body) -> dict[str, Any]:
     """Who labelled the body, how sure it was, and each region's share of the surface."""
     labelling = body.labelling.as_dict() if body.labelling else {"source": "given", "confidence": {}, "notes": []}
     if body.labels is not None:
-        area = lumped_mass(body.vertices, body.faces)
+        area = vertex_areas(body.vertices, body.faces)
         shares = np.bincount(body.labels[body.labels >= 0], weights=area[body.labels >= 0],
                              minlength=len(body.region_names)) / area.sum()
         labelling["regions"] = {name: round(float(share), 4) for name, share in zip(body.region_names, shares)}
@@ -317,4 +444,4 @@ def _independent_check(body: Body, result: ScalingResult) -> dict[str, Any]:
 
 
 __all__ = ["GlobalScaling", "RulesetScaling", "RawGlobalScaling", "LocalScaling", "Scaling", "Run", "prepare",
-           "label", "scale", "run", "save_output", "save_picture", "wanted_regions"]
+           "label", "label_working", "scale", "place", "PLACEMENTS", "working", "Working", "run", "save_output", "save_picture", "wanted_regions"]

@@ -33,7 +33,7 @@ class ScalingStep:
 class ScalingResult:
     """A scaling run. ``mass_ratio``/``stress_ratio`` are measured on the final body against the
     input body (stress at the same material section, see :class:`StressGauge`). The global run's
-    result; :class:`allorules.biology_scaling.BiologyScalingResult` adds a ruleset run's figures."""
+    result; :class:`allorules.runs.results.BiologyScalingResult` adds a ruleset run's figures."""
 
     mode: ClassVar[str] = "global"
 
@@ -150,8 +150,9 @@ class BiologyScalingResult(ScalingResult):
     stress_ratio: float | None = None
     transform: str = "per-axis"      # the power law's form (solver.transform of the ruleset)
     posture: dict[str, dict[str, float]] = field(default_factory=dict)   # per limb: tilt, foot lift, bend
-    posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.posture)
+    posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.solve.posture)
     warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
+    open_regions: list = field(default_factory=list)    # OpenRegionOutcome per open region and measure
 
     def details(self) -> dict:
         return {
@@ -162,6 +163,7 @@ class BiologyScalingResult(ScalingResult):
             "constraints": {key: float(value) for key, value in self.constraints.items()},
             "posture": self.posture,
             "warnings": list(self.warnings),
+            "open_regions": [outcome.as_dict() for outcome in self.open_regions],
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE},
         }
 

@@ -7,10 +7,10 @@ variant for comparison) and :func:`seam_strain` (how much a region's boundary te
 A run (METHOD §6):
 
 * R is split into n equal steps r = R^(1/n) no larger than the ruleset's step ratios
-  (:func:`allorules.global_scaling.step_ratios`, 1.1 / 0.9 by default).
+  (:func:`allorules.runs.steps.step_ratios`, 1.1 / 0.9 by default).
 * Each step recomputes the harmonic basis on the step's start mesh (warm-started from the previous
   basis), measures every target on that mesh (q* = q_0 · r^e) and solves Eq. 11 for
-  (s, α_0, α_j) (:func:`allorules.solver.solve_step`). Labels travel with the vertices (the
+  (s, α_0, α_j) (:func:`allorules.solve.step.solve_step`). Labels travel with the vertices (the
   connectivity never changes).
 * What earlier steps missed is carried forward: step k's target is also multiplied by
   q_input · R_{k−1}^e / q_0 (where the run should stand at the step's start over where it does,
@@ -23,7 +23,7 @@ A run (METHOD §6):
   step (the limb-stress one: stress at the input's material section equal to the input's), which
   is how the whole run is judged, so their misses do not add up either.
 * Peak stress is measured at one material section chosen on the input body and followed through
-  every step (:class:`allorules.global_scaling.StressGauge`), as in global scaling.
+  every step (:class:`allorules.measure.stress.StressGauge`), as in global scaling.
 * Success is measured on the whole run, on fresh measurements of the output against the input:
   achieved exponent e' = log(q_final / q_initial) / log R per rule, the body-mass ratio, and each
   constraint's residuals with r = R. The run is ``converged`` when every |e' − e| ≤
@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -53,12 +54,22 @@ from allorules.runs.results import (
     RulesetStep,
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
-from allorules.solve.energy import cached_measure, energy_terms
+from allorules.solve.energy import RESIDUAL_TOLERANCE, cached_measure, energy_terms
+from allorules.solve.open_regions import (
+    extra_regions,
+    open_region_outcomes,
+    open_region_terms,
+)
 from allorules.solve.posture import restore_limb_axes, restore_limb_lines
 from allorules.solve.step import solve_step
 
 log = logging.getLogger("allorules")
 
+# Basis reuse (issue 16, measured in docs/benchmarks.md): a basis serves up to BASIS_EVERY steps; a
+# step on an older basis gets REUSED_BASIS_TRIALS trials to meet its targets, else the basis is
+# recomputed and the step solved again.
+BASIS_EVERY = 4
+REUSED_BASIS_TRIALS = 25
 POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
 POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
 
@@ -113,13 +124,15 @@ def scale_with_ruleset(
     section=None,
     use_cache: bool = True,
     progress: RunProgress | None = None,
+    basis_every: int | None = None,
 ) -> BiologyScalingResult:
     """Scale a labelled ``body`` by the mass ratio R following ``ruleset`` (METHOD §6).
 
     ``registry``: the plugin registry the ruleset was loaded with (default: built-ins and entry
     points). ``modes``: basis size (default 1000). ``section``: a
-    :class:`allorules.measures.SectionChoice` overriding the load-bearing section. ``progress``
-    is told of the steps, each basis and each trial (:class:`allorules.progress.RunProgress`). Returns a
+    :class:`allorules.measure.stress.SectionChoice` overriding the load-bearing section. ``progress``
+    is told of the steps, each basis and each trial (:class:`allorules.runs.progress.RunProgress`).
+    ``basis_every``: how many steps one basis serves (default ``BASIS_EVERY``). Returns a
     result whose ``converged`` says whether every target was met within the documented
     tolerances; ``messages`` says what was missed. Raises :class:`ScalingError` only when a step
     cannot be solved at all (``closest`` = the result so far).
@@ -138,27 +151,54 @@ def scale_with_ruleset(
                                   posture_setting=ruleset.solver.posture)
 
     current, basis, jacobian, start = initial, None, None, None
-    terms = energy_terms(ruleset)
+    basis_age = 0                                       # steps the current basis has served
+    # Regions no rule measures are held isometric (METHOD §10): soft terms, and an α for each held
+    # appendage the ruleset does not list.
+    open_terms, open_notes = open_region_terms(ruleset, initial, registry, measure)
+    appendages = extra_regions(ruleset, initial)
+    result.warnings.extend(open_notes)
+    terms = energy_terms(ruleset) + open_terms
     anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
     reached = 1.0                                       # the mass ratio planned up to this step
     progress = progress or RunProgress()
+    every = BASIS_EVERY if basis_every is None else int(basis_every)
     for index, ratio in enumerate(ratios):
         progress.step_started(index + 1, len(ratios))
         started = time.perf_counter()
-        basis = step_basis(current, modes, basis, use_cache, progress.basis)
+        # A basis serves up to ``every`` steps (the mesh changes little per step); a step that
+        # cannot be solved on an older basis within REUSED_BASIS_TRIALS is solved again on a fresh one.
+        reused = basis is not None and basis_age < every
+        if not reused:
+            basis, basis_age = step_basis(current, modes, basis, use_cache, progress.basis), 0
+        else:
+            progress.basis(basis.modes, basis.modes)    # the step's basis is ready (the previous one)
         solving = time.perf_counter()
+        again = 0.0                                     # time of a basis recomputed after a failed reuse
         corrections = _carried_misses(terms, anchors, reached, current, measure)
+
+        def solve(step_ruleset, step_basis_):
+            return solve_step(current, step_basis_, step_ruleset, registry, ratio, measure=measure, jacobian=jacobian,
+                              start=start, on_trial=progress.trial, corrections=corrections,
+                              constraint_reference=(initial, reached * ratio), extra_terms=open_terms,
+                              extra_regions=appendages)
+
         try:
-            solution = solve_step(current, basis, ruleset, registry, ratio, measure=measure, jacobian=jacobian,
-                                  start=start, on_trial=progress.trial, corrections=corrections,
-                                  constraint_reference=(initial, reached * ratio))
+            solution = solve(_capped(ruleset) if reused else ruleset, basis)
+            if reused and not _solved(solution):
+                log.debug("step %d: not solved on a basis %d steps old (%s); recomputing it", index + 1, basis_age,
+                          solution.status)
+                before = time.perf_counter()
+                basis, basis_age = step_basis(current, modes, basis, use_cache, progress.basis), 0
+                again = time.perf_counter() - before
+                solution = solve(ruleset, basis)
         except ScalingError as error:
             result.body = current
-            _finish(result, initial, ruleset, registry, measure, gauge)
+            _finish(result, initial, ruleset, registry, measure, gauge, open_terms)
             result.converged = False
             message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
             result.messages.append(message)
             raise ScalingError(message, closest=result) from None
+        basis_age += 1
         # The steps are alike (same r, nearly the same mesh): the next one starts where this one ended.
         jacobian, start = solution.jacobian, solution.variables
         solved = time.perf_counter()
@@ -179,7 +219,7 @@ def scale_with_ruleset(
             residuals=solution.residuals, energy=solution.energy, evaluations=solution.evaluations,
             status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
             flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
-            basis_seconds=solving - started, solve_seconds=solved - solving,
+            basis_seconds=solving - started + again, solve_seconds=solved - solving - again,
         ))
         log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
                   solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
@@ -187,8 +227,19 @@ def scale_with_ruleset(
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))
     result.body = current
-    _finish(result, initial, ruleset, registry, measure, gauge)
+    _finish(result, initial, ruleset, registry, measure, gauge, open_terms)
     return result
+
+
+def _capped(ruleset):
+    """The ruleset with its trials per step capped at REUSED_BASIS_TRIALS (a step on a reused basis)."""
+    trials = min(int(ruleset.solver.max_evaluations), REUSED_BASIS_TRIALS)
+    return replace(ruleset, solver=replace(ruleset.solver, max_evaluations=trials))
+
+
+def _solved(solution) -> bool:
+    """Whether a step met every target within the solver's tolerance (RESIDUAL_TOLERANCE)."""
+    return max(map(abs, solution.residuals.values()), default=0.0) <= RESIDUAL_TOLERANCE
 
 
 def _carried_misses(terms, anchors: dict[str, float], reached: float, current: Body, measure) -> dict[str, float]:
@@ -237,7 +288,22 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
         log.warning("%s", warning)
 
 
-def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge) -> None:
+def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, measure, open_terms) -> None:
+    """What each open region achieved (allorules/solve/open_regions.py); a held one that strayed
+    beyond the exponent tolerance is a warning, not a failed run (it is a default nobody asked for)."""
+    if result.target_mass_ratio == 1.0:
+        return
+    held = {term.id for term in open_terms}
+    result.open_regions = open_region_outcomes(ruleset, registry, initial, final, result.target_mass_ratio, measure,
+                                               held, EXPONENT_TOLERANCE)
+    for outcome in result.open_regions:
+        if not outcome.met:
+            achieved = "not measured" if outcome.achieved_exponent is None else f"{outcome.achieved_exponent:.3f}"
+            result.warnings.append(f"open region {outcome.region}: {outcome.measure} exponent {achieved}, isometric "
+                                   f"{outcome.isometric_exponent:.3f} (±{outcome.tolerance})")
+
+
+def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=()) -> None:
     """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
     final = _fresh(result.body)
     if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
@@ -270,6 +336,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             result.constraints[key] = float(residual)
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
                 messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
+    _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms)
     result.converged = not messages
     result.messages.extend(messages)
     if messages:

@@ -36,6 +36,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from allorules.body import UNLABELLED, Body, Frame
 from allorules.errors import SegmentationError
+from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import (
     corner_edges,
     directed_edges,
@@ -43,7 +44,6 @@ from allorules.mesh.topology import (
     vertex_graph,
 )
 from allorules.segment.regions import QUADRUPED_REGIONS
-from allorules.spectral.laplacian import lumped_mass
 
 REGIONS = QUADRUPED_REGIONS
 HEAD, NECK, CHEST, ABDOMEN, FORELIMBS, HINDLIMBS = range(6)
@@ -82,7 +82,7 @@ def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True)
     up = _unit_or_none(up, "up")
     forward = _unit_or_none(forward, "forward")
     graph = vertex_graph(vertices, faces)
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     parts = vertex_components(graph)
     main_part = int(np.argmax(np.bincount(parts, weights=mass)))
     main = parts == main_part

@@ -19,9 +19,10 @@ import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components
 
 from allorules.errors import SegmentationError
+from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import vertex_graph
 from allorules.spectral.eigen import few_smallest_eigenpairs
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 
 DEFAULT_PATCH_COUNT = 24
 KMEANS_RESTARTS = 4
@@ -45,9 +46,9 @@ def spectral_patches(vertices: np.ndarray, faces: np.ndarray, count: int = DEFAU
     part_count, _ = connected_components(graph, directed=False)
     if part_count > 1:
         raise SegmentationError(
-            f"the mesh has {part_count} separate parts; prepare it first (allorules.preparation keeps the largest part)"
+            f"the mesh has {part_count} separate parts; prepare it first (allorules.mesh.repair keeps the largest part)"
         )
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     if count == 1:
         return np.zeros(n, dtype=np.int64)
     eigenvalues, vectors = few_smallest_eigenpairs(cotangent_laplacian(vertices, faces), mass, min(count + 1, n - 1))

@@ -37,7 +37,7 @@ class Term:
     """One target of the energy: ``measure(region)`` should become ``initial · r^exponent``."""
 
     id: str
-    kind: str                   # "body-mass" or "rule"
+    kind: str                   # "body-mass", "rule" or "open-region" (allorules/solve/open_regions.py)
     measure: str
     region: str | None
     exponent: float
@@ -97,14 +97,15 @@ class StepEnergy:
     def __init__(self, transform_: StepTransform, ruleset, registry, mass_ratio: float, measure: Measure,
                  on_trial: Callable[[int, float], None] | None = None,
                  corrections: Mapping[str, float] | None = None,
-                 constraint_reference: tuple[Body, float] | None = None):
+                 constraint_reference: tuple[Body, float] | None = None,
+                 extra_terms: list[Term] | None = None):
         self.transform = transform_
         self.on_trial = on_trial
         self.ruleset = ruleset
         self.registry = registry
         self.mass_ratio = float(mass_ratio)
         self.measure = measure
-        self.terms = energy_terms(ruleset)
+        self.terms = energy_terms(ruleset) + list(extra_terms or [])   # + the open regions' soft terms
         self.constraints = [(use, registry.constraint(use.name)) for use in ruleset.constraints]
         start = transform_.body
         self.initial = {term.id: measure(term.measure, start, term.region) for term in self.terms}

@@ -5,14 +5,14 @@ still leave a leg leaning, or a pair of feet off the ground (docs/biology-scalin
 No rule measures a direction or a height, so this module keeps them, without touching what the
 rules measure:
 
-* :class:`FootContact` is part of each step's transform (:class:`allorules.solver.StepTransform`):
+* :class:`FootContact` is part of each step's transform (:class:`allorules.solve.transform.StepTransform`):
   after Eq. 9, each leg is moved rigidly up or down along the ground's normal so that the feet
   keep the heights above one another they had at the step's start (scaled with the body); the
   rest of the body follows in a harmonic blend of the legs' shifts. The solver measures, and so
   meets its targets on, the mesh with the feet put back.
 * :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
   after the step; the step's foot contact is then applied once more, since turning a slanted
-  leg moves its foot (:func:`allorules.biology_scaling.scale_with_ruleset`).
+  leg moves its foot (:func:`allorules.runs.ruleset_run.scale_with_ruleset`).
 * :func:`restore_limb_lines` gives each leg's centre line, below its first cross-section, back
   the shape it had at the step's start (a leg Eq. 9 bowed is straightened), after every step but
   the last, so that the next step's carried-forward misses make up what it changed.
@@ -51,7 +51,7 @@ def _limbs(body: Body) -> list:
 
 def _limb_pairs(reference: Body, moved: Body) -> list[tuple]:
     """Each limb of ``reference`` with the same limb on ``moved`` (same faces and labels), measured
-    on the same material loops (:func:`allorules.measures.carry_fields`)."""
+    on the same material loops (:func:`allorules.measure.parts.carry_fields`)."""
     from allorules.measure.parts import carry_fields
 
     limbs = _limbs(reference)        # before carrying: the same limbs

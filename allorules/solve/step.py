@@ -8,12 +8,12 @@ dimensionless coefficients and u_j those of region j's vertices alone (Eq. 5, sa
     x̃'_i = s · c · sgn(u_i) |u_i|^(1 + α_0 + Σ_j α_j G(u_i, u_j,i)),   i ≥ 1,
 
 mode 0 untouched, detail beyond the m-th mode added back × s
-(:func:`allorules.scaling.multi_region_power_law`, :func:`allorules.scaling.apply_to_mesh`). The
+(:func:`allorules.spectral.power_laws.multi_region_power_law`, :func:`allorules.spectral.power_laws.apply_to_mesh`). The
 axes of "per axis" are the animal's own (forward, up, side: :func:`anatomical_axes`), so a turned
 mesh gives the same animal turned; ``solver.transform: per-mode`` is the alternative on each
 mode's vector length (docs/biology-scaling.md).
 With ``solver.posture: keep`` the transform then puts every foot back at its height above the
-others (:class:`allorules.posture.FootContact`: legs moved rigidly along the ground's normal), so the
+others (:class:`allorules.solve.posture.FootContact`: legs moved rigidly along the ground's normal), so the
 solver measures, and meets its targets on, the animal standing.
 Region coefficients are taken of the vertices *relative to the body's area-weighted centroid*
 (the point mode 0 represents), so that the gate G, and with it the result, does not depend on
@@ -33,7 +33,7 @@ residuals, one term per active part of the ruleset:
   The stopping test (``ENERGY_TARGET``) looks at the misfit, the energy without the ridge.
 
 Every trial mesh is measured along the material curves of the step's start body
-(:func:`allorules.measures.carry_fields`), so the measures vary smoothly with the variables; every
+(:func:`allorules.measure.parts.carry_fields`), so the measures vary smoothly with the variables; every
 measure is computed at most once per trial (``body.cache``).
 
 **The solve.** Each trial costs a reconstruction and a full set of measurements (the skeleton
@@ -79,6 +79,7 @@ from allorules.solve.energy import (
     Evaluation,
     Measure,
     StepEnergy,
+    Term,
     cached_measure,
 )
 from allorules.solve.posture import FootContact
@@ -209,6 +210,8 @@ def solve_step(
     on_trial: Callable[[int, float], None] | None = None,
     corrections: Mapping[str, float] | None = None,
     constraint_reference: tuple[Body, float] | None = None,
+    extra_terms: list[Term] | None = None,
+    extra_regions: tuple[str, ...] = (),
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
@@ -217,15 +220,20 @@ def solve_step(
     α = 0); ``jacobian`` (from the previous step's solution) saves the finite differences.
     ``on_trial(count, misfit)`` is told of every trial mesh measured (misfit: the best so far).
     ``corrections`` multiplies terms' targets by id (the run's carried-forward misses, see
-    :func:`allorules.biology_scaling.scale_with_ruleset`); ``constraint_reference`` = (body, ratio)
+    :func:`allorules.runs.ruleset_run.scale_with_ruleset`); ``constraint_reference`` = (body, ratio)
     that constraints compare a trial with (default: the step's start and ``mass_ratio``).
+    ``extra_terms`` (the open regions' soft isometric terms, :mod:`allorules.solve.open_regions`)
+    join the energy; ``extra_regions`` (appendages the ruleset does not list) get an α_j each.
+    ``solver.detail_cutoff`` splits the surface into base and detail (:class:`allorules.spectral.power_laws.DetailLayer`).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
-    regions = tuple(ruleset.regions)
-    step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep")
-    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference)
+    regions = tuple(ruleset.regions) + tuple(extra_regions)
+    step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
+                            detail_cutoff=settings.detail_cutoff)
+    energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference,
+                        extra_terms)
 
     count = 2 + len(regions)
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)

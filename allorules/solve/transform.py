@@ -12,7 +12,9 @@ from allorules.rules.model import TRANSFORM_FORMS
 from allorules.solve.posture import FootContact
 from allorules.spectral.basis import HarmonicBasis, transform
 from allorules.spectral.power_laws import (
+    DetailLayer,
     apply_to_mesh,
+    detail_taper,
     dimensionless,
     from_mode_magnitudes,
     mode_magnitudes,
@@ -53,7 +55,7 @@ def anatomical_axes(body: Body) -> np.ndarray:
 class StepTransform:
     """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j.
 
-    ``form`` is how coefficients are made dimensionless (:mod:`allorules.scaling`): ``"per-axis"``
+    ``form`` is how coefficients are made dimensionless (:mod:`allorules.spectral.power_laws`): ``"per-axis"``
     (METHOD §5: u = x̃ / c per axis, the power law on each axis) or ``"per-mode"`` (ρ_i = ‖x̃_i‖ / c,
     the power law on each mode's vector length, its direction kept; u_j = the region's share of
     the mode). ``u`` and each ``region_us[j]`` are (m, 3) per axis and (m,) per mode.
@@ -68,28 +70,36 @@ class StepTransform:
     region_us: list[np.ndarray]
     form: str = "per-axis"
     axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
-    feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.posture)
+    feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.solve.posture)
+    detail: DetailLayer | None = None  # solver.detail_cutoff: Eq. 9 on the base, the detail following it
 
     @classmethod
     def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
-           keep_feet: bool = False) -> "StepTransform":
+           keep_feet: bool = False, detail_cutoff: float | None = None) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
-        coefficients = transform(basis, body.vertices)
+        # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
+        centred = body.vertices - (basis.mass @ body.vertices) / basis.mass.sum()
+        masks = [body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
+                 for region in regions]
+        # x̃ and every region's x̃_seg in one pass over the basis (it is read once, not 1 + k times)
+        together = transform(basis, np.hstack([body.vertices] + [centred * mask[:, None] for mask in masks]))
+        coefficients = together[:, :3]
         axes = anatomical_axes(body) if form == "per-axis" else None
         # per axis: the axes are the animal's own (forward, up, side), so that the result does not
         # depend on how the mesh is turned; the coefficients of those coordinates are x̃ Aᵀ.
         u, c = dimensionless(coefficients @ axes.T) if form == "per-axis" else mode_magnitudes(coefficients)
-        # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
-        centred = body.vertices - (basis.mass @ body.vertices) / basis.mass.sum()
         region_us = []
-        for region in regions:
-            mask = body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
-            region_coefficients = transform(basis, centred * mask[:, None])            # x̃_seg
+        for number in range(len(regions)):
+            region_coefficients = together[:, 3 + 3 * number:6 + 3 * number]            # x̃_seg
             region_us.append(region_coefficients @ axes.T / c if form == "per-axis"
                              else mode_shares(region_coefficients, coefficients, c))
         feet = FootContact.of(body) if keep_feet else None
-        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet)
+        detail = None
+        if detail_cutoff is not None:
+            taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
+            detail = DetailLayer(basis, body.vertices, coefficients, taper)
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
         """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back)."""
@@ -101,7 +111,10 @@ class StepTransform:
             new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
         else:
             new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
-        vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        if self.detail is not None:
+            vertices = self.detail.apply(new_coefficients)
+        else:
+            vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
         return vertices if self.feet is None else self.feet.apply(vertices, scale)
 
     def body_at(self, variables: np.ndarray) -> Body:

@@ -5,7 +5,7 @@ transform of per-vertex coordinates ``x`` (n × 3) is ``x̃ = Hᵀ D x`` (m × 3
 ``H x̃``, and the *detail* ``x − H x̃`` is what lies beyond the m-th mode: adding it back after an
 edit makes the identity edit exact.
 
-Bases are cached on disk (see :mod:`allorules.cache`), keyed by the mesh's exact content, the
+Bases are cached on disk (see :mod:`allorules.spectral.cache`), keyed by the mesh's exact content, the
 number of modes and the solver version.
 """
 from __future__ import annotations
@@ -16,9 +16,10 @@ from typing import Callable
 import numpy as np
 
 from allorules.errors import BasisError
+from allorules.mesh.geometry import vertex_areas
 from allorules.spectral import cache as basis_cache
 from allorules.spectral.eigen import smallest_eigenpairs
-from allorules.spectral.laplacian import cotangent_laplacian, lumped_mass
+from allorules.spectral.laplacian import cotangent_laplacian
 
 DEFAULT_MODES = 1000
 
@@ -63,11 +64,11 @@ def compute_basis(
         if cached is not None:
             return HarmonicBasis(*cached)
     stiffness = cotangent_laplacian(vertices, faces)
-    mass = lumped_mass(vertices, faces)
+    mass = vertex_areas(vertices, faces)
     if np.any(mass <= 0):
         raise BasisError(
             f"{int(np.sum(mass <= 0))} vertices have no surrounding area; prepare the mesh first "
-            "(allorules.preparation.prepare_mesh) to drop unreferenced vertices and degenerate faces"
+            "(allorules.mesh.repair.prepare_mesh) to drop unreferenced vertices and degenerate faces"
         )
     initial = warm_start.vectors if warm_start is not None and warm_start.vectors.shape[0] == len(vertices) else None
     eigenvalues, vectors = smallest_eigenpairs(stiffness, mass, count, initial=initial, progress=progress)

@@ -6,7 +6,7 @@ boundaries, and λ_k ∝ k² (we use λ_k = k²; only λ_k/λ_1 enters). The sig
 power-law noise: DCT coefficients ``x̃_k = g_k · k^(−β)`` with Gaussian ``g_k`` (seeded), i.e. an
 *amplitude* spectrum 1/f^β (power spectrum 1/f^(2β)); β = 1 is the paper's "1/f" signal.
 
-They are the cheapest exact checks of the spectral algebra in :mod:`allorules.scaling`:
+They are the cheapest exact checks of the spectral algebra in :mod:`allorules.spectral.power_laws`:
 
 * **global** (Fig. 8): scaling by (λ_k/λ_1)^α adds α·log λ_k − α·log λ_1 to log|x̃_k|, so the
   least-squares slope of log|x̃| against log λ moves by exactly +α (by +2α against log k).

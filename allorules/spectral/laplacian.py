@@ -9,17 +9,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sparse
 
-from allorules.mesh.geometry import face_areas
-
-
-def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Diagonal of the barycentric mass matrix D: D_ii = Σ_{faces ∋ i} area / 3."""
-    areas = face_areas(vertices, faces) / 3.0
-    mass = np.zeros(len(vertices))
-    for k in range(3):
-        np.add.at(mass, faces[:, k], areas)
-    return mass
-
 
 def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
     """Cotangent stiffness matrix L (symmetric, positive semi-definite, rows sum to zero).

@@ -2,7 +2,7 @@
 
 Pure functions on coefficient arrays ``x̃`` of shape (m, 3) (or (m,) for one axis) and on the
 basis eigenvalues. Nothing here measures a mesh or solves for parameters; the runs that do live
-in :mod:`allorules.global_scaling` (and the biology-aware solver).
+in :mod:`allorules.runs.global_run` (and the biology-aware solver).
 
 Conventions, fixed here once for every caller:
 
@@ -43,6 +43,8 @@ __all__ = [
     "multi_region_power_law",
     "arithmetic_region_scaling",
     "apply_to_mesh",
+    "detail_taper",
+    "DetailLayer",
 ]
 
 
@@ -275,3 +277,77 @@ def apply_to_mesh(
     if not np.all(np.isfinite(result)):
         raise ValueError("scaled vertices are not finite")
     return result
+
+
+def detail_taper(eigenvalues: np.ndarray, area: float, cutoff_modes: float | None) -> np.ndarray:
+    """Per mode, how much of an edit of the coefficients reaches the mesh: 1 for the coarse modes
+    that carry the body's proportions, 0 for the fine modes that carry its small features.
+
+    The cutoff is a wavelength, not a mode number, so that it does not depend on the mesh's
+    tessellation or units: λ_c = 4π·K / A (A the surface area), the eigenvalue of mode K of a
+    surface of area A by Weyl's law (λ_k ≈ 4πk/A), i.e. wavelengths about √(πA/K). Modes with
+    λ ≤ λ_c get 1; between λ_c and 4λ_c (wavelength halved) the weight falls smoothly,
+    w = cos²(π/2 · log(λ/λ_c)/log 4); beyond it, 0. ``cutoff_modes=None``: every mode gets 1
+    (the paper's Eq. 4/9 on the whole spectrum). Mode 0 always gets 1.
+    """
+    eigenvalues = np.asarray(eigenvalues, dtype=float)
+    weights = np.ones(len(eigenvalues))
+    if cutoff_modes is None:
+        return weights
+    if not (np.isfinite(cutoff_modes) and cutoff_modes > 0 and area > 0):
+        raise ValueError(f"the detail cutoff must be a positive number of modes, got {cutoff_modes}")
+    cutoff = 4.0 * np.pi * float(cutoff_modes) / float(area)
+    ratio = np.maximum(eigenvalues, 0.0) / cutoff
+    above = ratio > 1.0
+    position = np.log(np.where(above, ratio, 1.0)) / np.log(4.0)
+    weights = np.where(above, np.cos(0.5 * np.pi * np.clip(position, 0.0, 1.0)) ** 2, 1.0)
+    weights[0] = 1.0
+    return weights
+
+
+class DetailLayer:
+    """The surface split into a smooth base and the detail on it, so that an edit of the
+    coefficients reshapes the body and leaves its small features their shape (METHOD §10).
+
+    ``x = b + d`` with the base b = H (w ⊙ x̃) (the coarse modes, weighted by the
+    :func:`detail_taper` w) and the detail d = x − b (the fine modes and everything beyond the
+    m-th mode: horns, ears, eyes, hooves, the tail's tip). An edit x̃ → x̃' moves the base by
+    Δb = H (w ⊙ (x̃' − x̃)) and scales the detail by the base's own change of size σ:
+
+        x' = b + Δb + σ · d,    σ² = Σ_i D_i |b'_i − c|² / Σ_i D_i |b_i − c|²
+
+    (c the area-weighted centroid, which mode 0 keeps; σ is the ratio of the base's RMS radius
+    after and before). Uniform scaling by s gives σ = s and x' = c + s (x − c) exactly; the
+    identity edit gives x exactly. The paper's Eq. 9 instead changes every mode by its own factor
+    s·|u_i|^(α_0 + Σ α_j G) and METHOD §2 adds the detail back × s: the fine modes of one small
+    feature then change by different factors (it stretches, thins or curls) and, where the power
+    laws shrink the body below s (at ×2 the product of the steps' s is 1.37 while the body grows
+    by 1.26), the detail outgrows the body (horns, ears and eyes bulge). See docs/method.md (solver.detail_cutoff; off by default).
+    """
+
+    def __init__(self, basis: HarmonicBasis, vertices: np.ndarray, coefficients: np.ndarray, taper: np.ndarray):
+        self.basis = basis
+        self.vertices = np.asarray(vertices, dtype=float)
+        self.coefficients = np.asarray(coefficients, dtype=float)
+        self.taper = np.asarray(taper, dtype=float)
+        self.base = reconstruct(basis, self.taper[:, None] * self.coefficients)
+        self.detail = self.vertices - self.base
+        self._weights = basis.mass / basis.mass.sum()
+        self._centre = self._weights @ self.vertices
+        self._spread = self._rms_radius(self.base)
+
+    def _rms_radius(self, points: np.ndarray) -> float:
+        offset = points - self._centre
+        return float(np.sqrt(self._weights @ np.einsum("ij,ij->i", offset, offset)))
+
+    def apply(self, new_coefficients: np.ndarray) -> np.ndarray:
+        """Vertices for edited coefficients x̃' (the whole edit, isometric factor included)."""
+        change = self.taper[:, None] * (np.asarray(new_coefficients, dtype=float) - self.coefficients)
+        if not np.any(change):
+            return self.vertices.copy()
+        moved = self.base + reconstruct(self.basis, change)
+        scale = self._rms_radius(moved) / self._spread if self._spread > 0 else 1.0
+        result = moved + scale * self.detail
+        if not np.all(np.isfinite(result)):
+            raise ValueError("scaled vertices are not finite")
+        return result

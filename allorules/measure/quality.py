@@ -1,0 +1,363 @@
+"""What an artist would see in a scaled animal that no rule measures (METHOD §10, issue 18).
+
+Owns the quality measures of an output against its input, each a function returning a small,
+JSON-ready dataclass (``as_dict()``), and :func:`quality_report`, which gathers them:
+
+* :func:`flipped_faces`: faces whose normal turned by more than 90° (count and regions);
+* :func:`self_intersections`: pairs of faces of the surface that pass through each other (count,
+  and which regions touch), found with libigl's AABB tree (edge segments against faces);
+* :func:`surface_roughness`: lumps and ripples, as the change of the dihedral angles between
+  neighbouring faces (uniform scaling keeps every dihedral angle, so this is the difference from
+  plain uniform scaling);
+* :func:`small_feature_changes`: each small feature's shape change after the best similarity
+  (:mod:`allorules.measure.features`);
+* :func:`leg_stances`: each leg's lean, foot lift and bow (:func:`allorules.measure.limbs.posture_change`);
+* :func:`rule_checks`: per rule of a ruleset run, whether it was ``met`` within the tolerance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from allorules.body import Body
+
+__all__ = [
+    "FlippedFaces",
+    "SelfIntersections",
+    "SurfaceRoughness",
+    "LegStance",
+    "RuleCheck",
+    "QualityReport",
+    "flipped_faces",
+    "self_intersections",
+    "surface_roughness",
+    "small_feature_changes",
+    "leg_stances",
+    "rule_checks",
+    "quality_report",
+]
+
+
+def _region_of_faces(body: Body | None, faces: np.ndarray) -> np.ndarray | None:
+    """Each face's region name (the label of most of its vertices), or None without labels."""
+    if body is None or body.labels is None:
+        return None
+    labels = body.labels[faces]
+    names = np.array(list(body.region_names) + ["unlabelled"], dtype=object)
+    majority = np.where(labels[:, 1] == labels[:, 2], labels[:, 1], labels[:, 0])
+    return names[np.where(majority >= 0, majority, len(body.region_names))]
+
+
+# ---------------------------------------------------------------------------------------------
+# Flipped faces
+
+
+@dataclass(frozen=True)
+class FlippedFaces:
+    """Faces whose normal turned by more than 90° from input to output, and where they are."""
+
+    count: int
+    regions: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"count": int(self.count), "regions": {key: int(value) for key, value in self.regions.items()}}
+
+
+def flipped_faces(before: Body, after: np.ndarray) -> FlippedFaces:
+    """Faces of ``before`` whose normal points more than 90° away on ``after`` (same faces)."""
+    from allorules.mesh.geometry import face_normals
+
+    normals_before = face_normals(before.vertices, before.faces)
+    normals_after = face_normals(np.asarray(after, dtype=float), before.faces)
+    flipped = np.einsum("ij,ij->i", normals_before, normals_after) <= 0   # as global_scaling.count_flipped_faces
+    regions = _region_of_faces(before, before.faces[flipped])
+    counts: dict[str, int] = {}
+    if regions is not None:
+        for name in regions:
+            counts[str(name)] = counts.get(str(name), 0) + 1
+    return FlippedFaces(int(flipped.sum()), counts)
+
+
+# ---------------------------------------------------------------------------------------------
+# Self-intersections
+
+
+@dataclass(frozen=True)
+class SelfIntersections:
+    """Pairs of faces that pass through each other (faces sharing a vertex do not count).
+
+    ``pairs``: how many pairs of faces intersect; ``faces``: how many faces take part;
+    ``regions``: per pair of regions ("forelimbs|hindlimbs", "abdomen|abdomen"), how many face
+    pairs. ``new_pairs``: the pairs not already intersecting in the input (None when the input
+    was not checked)."""
+
+    pairs: int
+    faces: int
+    regions: dict[str, int] = field(default_factory=dict)
+    new_pairs: int | None = None
+
+    def as_dict(self) -> dict:
+        return {"pairs": int(self.pairs), "faces": int(self.faces), "new_pairs": self.new_pairs,
+                "regions": {key: int(value) for key, value in self.regions.items()}}
+
+
+def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 2) sorted pairs of face indices whose triangles intersect, faces sharing a vertex left out.
+
+    Two triangles in general position intersect exactly when an edge of one crosses the other:
+    every edge segment is cast as a ray against libigl's AABB tree of the faces (hits with
+    0 ≤ t ≤ 1), and each hit face that does not share a vertex with the edge pairs with the
+    faces on either side of that edge."""
+    import igl
+
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    owner = np.tile(np.arange(len(faces)), 3)
+    key = np.sort(edges, axis=1)
+    unique, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    tree = igl.AABB()
+    tree.init(vertices, faces)
+    origins = np.ascontiguousarray(vertices[unique[:, 0]])
+    directions = np.ascontiguousarray(vertices[unique[:, 1]] - vertices[unique[:, 0]])
+    hits = tree.intersect_ray(vertices, faces, origins, directions)
+    edge_faces: dict[int, list[int]] = {}
+    for face, edge in zip(owner, inverse):
+        edge_faces.setdefault(int(edge), []).append(int(face))
+    pairs = set()
+    for edge, found in enumerate(hits):
+        if not found:
+            continue
+        a, b = unique[edge]
+        for hit in found:
+            face, t = int(hit[0]), float(hit[1])
+            if not 0.0 <= t <= 1.0:
+                continue
+            corners = faces[face]
+            if a in corners or b in corners:
+                continue
+            for other in edge_faces[edge]:
+                if np.intersect1d(faces[other], corners).size:
+                    continue
+                pairs.add((min(face, other), max(face, other)))
+    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+
+
+def self_intersections(body: Body, vertices: np.ndarray | None = None, *, compare_with_input: bool = True
+                       ) -> SelfIntersections:
+    """Self-intersections of ``vertices`` (default: the body's own) on the body's faces, with the
+    regions that touch. With ``compare_with_input`` and ``vertices`` given, also how many of the
+    pairs are new (not intersecting on ``body.vertices``)."""
+    positions = body.vertices if vertices is None else np.asarray(vertices, dtype=float)
+    pairs = intersecting_face_pairs(positions, body.faces)
+    regions: dict[str, int] = {}
+    names = _region_of_faces(body, body.faces)
+    if names is not None and len(pairs):
+        for first, second in pairs:
+            key = "|".join(sorted((str(names[first]), str(names[second]))))
+            regions[key] = regions.get(key, 0) + 1
+    new = None
+    if vertices is not None and compare_with_input:
+        existing = {tuple(pair) for pair in intersecting_face_pairs(body.vertices, body.faces)}
+        new = sum(1 for pair in pairs if tuple(pair) not in existing)
+    return SelfIntersections(int(len(pairs)), int(len(np.unique(pairs))) if len(pairs) else 0, regions, new)
+
+
+# ---------------------------------------------------------------------------------------------
+# Roughness
+
+
+@dataclass(frozen=True)
+class SurfaceRoughness:
+    """How much lumpier or more rippled the output is than plain uniform scaling of the input.
+
+    The dihedral angle between two neighbouring faces does not change under uniform scaling (or
+    any similarity); smooth changes of proportion change it little, lumps and ripples much.
+    ``rms_degrees``: the root mean square change of the dihedral angles over all interior edges,
+    weighted by edge length (0 for uniform scaling); ``p99_degrees``: its 99th percentile;
+    ``input_rms_degrees``: the input's own RMS dihedral angle, for scale."""
+
+    rms_degrees: float
+    p99_degrees: float
+    input_rms_degrees: float
+
+    def as_dict(self) -> dict:
+        return {"rms_degrees": float(self.rms_degrees), "p99_degrees": float(self.p99_degrees),
+                "input_rms_degrees": float(self.input_rms_degrees)}
+
+
+def _dihedral_angles(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed angle between the normals of the two faces of each interior edge, and the edge's
+    faces (k, 2) and vertices (k, 2)."""
+    from allorules.mesh.geometry import face_normals
+
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    owner = np.tile(np.arange(len(faces)), 3)
+    key = np.sort(edges, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, owner = key[order], owner[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    first = np.flatnonzero(same)
+    pairs = np.column_stack([owner[first], owner[first + 1]])
+    edge_vertices = key[first]
+    normals = face_normals(vertices, faces)
+    normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), np.finfo(float).tiny)
+    a, b = normals[pairs[:, 0]], normals[pairs[:, 1]]
+    cosine = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    return np.arccos(cosine), pairs, edge_vertices
+
+
+def surface_roughness(before_vertices: np.ndarray, after_vertices: np.ndarray, faces: np.ndarray) -> SurfaceRoughness:
+    """Change of the dihedral angles from input to output (see :class:`SurfaceRoughness`)."""
+    before_vertices, after_vertices = np.asarray(before_vertices, float), np.asarray(after_vertices, float)
+    faces = np.asarray(faces, dtype=np.int64)
+    angle_before, _, edge_vertices = _dihedral_angles(before_vertices, faces)
+    angle_after, _, _ = _dihedral_angles(after_vertices, faces)
+    lengths = np.linalg.norm(before_vertices[edge_vertices[:, 0]] - before_vertices[edge_vertices[:, 1]], axis=1)
+    weights = lengths / lengths.sum() if lengths.sum() > 0 else np.full(len(lengths), 1.0 / max(len(lengths), 1))
+    change = np.degrees(np.abs(angle_after - angle_before))
+    return SurfaceRoughness(float(np.sqrt(weights @ change ** 2)), float(np.percentile(change, 99)) if len(change) else 0.0,
+                            float(np.sqrt(weights @ np.degrees(angle_before) ** 2)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Small features, legs, rules
+
+
+def small_feature_changes(before: Body, after: np.ndarray, features: Sequence | None = None) -> list:
+    """:class:`allorules.measure.features.FeatureShapeChange` of every small feature of ``before``
+    (found with :func:`allorules.measure.features.find_small_features` unless given), largest change first."""
+    from allorules.measure.features import (
+        feature_region,
+        feature_shape_change,
+        find_small_features,
+    )
+    from allorules.mesh.geometry import vertex_areas
+
+    features = find_small_features(before.vertices, before.faces) if features is None else features
+    areas = vertex_areas(before.vertices, before.faces)
+    changes = [feature_shape_change(before.vertices, after, feature,
+                                    feature_region(feature, before.labels, before.region_names), areas)
+               for feature in features]
+    return sorted(changes, key=lambda change: -change.shape_change)
+
+
+@dataclass(frozen=True)
+class LegStance:
+    """One leg over a run: how far it leans, how far its foot rose, how much more it bows."""
+
+    leg: str
+    tilt_degrees: float
+    foot_lift: float        # in leg lengths (height above the lowest foot)
+    bend: float             # change of the bow, in leg lengths
+
+    def as_dict(self) -> dict:
+        return {"leg": self.leg, "tilt_degrees": float(self.tilt_degrees), "foot_lift": float(self.foot_lift),
+                "bend": float(self.bend)}
+
+
+def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
+    """Each leg's lean, foot lift and bow change (:func:`allorules.measure.limbs.posture_change`)."""
+    from allorules.measure.limbs import posture_change
+
+    change = posture_change(before, before.with_vertices(np.asarray(after, dtype=float)))
+    return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"]) for leg, values in change.items()]
+
+
+@dataclass(frozen=True)
+class RuleCheck:
+    """A rule over a whole run: target and achieved exponent, and whether it is met."""
+
+    id: str
+    target: float
+    achieved: float
+    tolerance: float
+    met: bool
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "target": float(self.target), "achieved": float(self.achieved),
+                "error": float(self.achieved - self.target), "tolerance": float(self.tolerance), "met": bool(self.met)}
+
+
+def rule_checks(outcomes: Iterable, tolerance: float) -> list[RuleCheck]:
+    """Per rule outcome (anything with ``id``, ``exponent`` and ``achieved_exponent``, such as
+    :class:`allorules.runs.results.RuleOutcome`): ``met`` when |achieved − target| ≤ ``tolerance``
+    (a run passes its ``EXPONENT_TOLERANCE``)."""
+    return [RuleCheck(outcome.id, float(outcome.exponent), float(outcome.achieved_exponent), float(tolerance),
+                      bool(abs(outcome.achieved_exponent - outcome.exponent) <= tolerance + 1e-12))
+            for outcome in outcomes]
+
+
+# ---------------------------------------------------------------------------------------------
+# Everything
+
+
+@dataclass
+class QualityReport:
+    """The quality measures of one output against its input (all JSON-ready through ``as_dict``)."""
+
+    flipped: FlippedFaces
+    intersections: SelfIntersections | None
+    roughness: SurfaceRoughness
+    features: list = field(default_factory=list)
+    legs: list[LegStance] = field(default_factory=list)
+    rules: list[RuleCheck] = field(default_factory=list)
+
+    @property
+    def worst_feature_change(self) -> float:
+        return max((change.shape_change for change in self.features), default=0.0)
+
+    def summary(self) -> str:
+        """The terminal's line: what an artist would look for, in numbers."""
+        parts = [f"{self.flipped.count} flipped faces"]
+        if self.intersections is not None:
+            new = self.intersections.new_pairs
+            parts.append(f"{self.intersections.pairs if new is None else new} {'new ' if new is not None else ''}"
+                         "self-intersecting face pairs")
+        parts.append(f"roughness {self.roughness.rms_degrees:.1f}° (0 for uniform scaling)")
+        if self.features:
+            parts.append(f"{len(self.features)} small features changed shape by up to "
+                         f"{100 * self.worst_feature_change:.0f}% of their size")
+        missed = [rule.id for rule in self.rules if not rule.met]
+        if self.rules:
+            parts.append(f"{len(self.rules) - len(missed)} of {len(self.rules)} rules met"
+                         + (f" (missed: {', '.join(missed)})" if missed else ""))
+        return "quality: " + ", ".join(parts)
+
+    def as_dict(self) -> dict:
+        return {
+            "flipped_faces": self.flipped.as_dict(),
+            "self_intersections": None if self.intersections is None else self.intersections.as_dict(),
+            "roughness": self.roughness.as_dict(),
+            "small_features": [change.as_dict() for change in self.features],
+            "worst_feature_change": float(self.worst_feature_change),
+            "legs": [leg.as_dict() for leg in self.legs],
+            "rules": [rule.as_dict() for rule in self.rules],
+        }
+
+
+def quality_report(before: Body, after: np.ndarray, *, rules: Iterable | None = None, tolerance: float = 0.02,
+                   intersections: bool = True, legs: bool = True) -> QualityReport:
+    """All the quality measures of ``after`` (vertex positions on ``before``'s faces) against
+    ``before``. ``rules``: the run's rule outcomes, for :func:`rule_checks`. A measure that cannot
+    be taken on this body (no legs labelled) is left empty rather than failing the report."""
+    from allorules.errors import AllorulesError
+
+    after = np.asarray(after, dtype=float)
+    stances: list[LegStance] = []
+    if legs and before.labels is not None:
+        try:
+            stances = leg_stances(before, after)
+        except AllorulesError:
+            stances = []
+    return QualityReport(
+        flipped=flipped_faces(before, after),
+        intersections=self_intersections(before, after) if intersections else None,
+        roughness=surface_roughness(before.vertices, after, before.faces),
+        features=small_feature_changes(before, after),
+        legs=stances,
+        rules=rule_checks(rules, tolerance) if rules is not None else [],
+    )

@@ -1,0 +1,210 @@
+"""The working mesh: the one surface on which labelling, the basis, measuring and the solve run
+(METHOD §9, issue 16).
+
+Users bring 2k to 2M vertices; the answer must not depend on how finely the animal is
+tessellated, and a 1,000-mode basis of a million vertices is out of reach. So every run works on
+a mesh of a fixed, documented size and triangle quality made from the user's prepared body:
+
+* at or below ``target`` vertices (default :data:`WORKING_VERTICES`): the body itself, untouched
+  (``method == "as-is"``; every result is then bit for bit what it was before the working mesh
+  existed);
+* above it: isotropic remeshing (Botsch & Kobbelt 2004, gpytoolbox's ``remesh_botsch``: split,
+  collapse, flip, tangential relaxation, projection back onto the input) to the edge length of
+  an equilateral mesh of ``target`` vertices over the body's area; where the body has more than
+  :data:`DECIMATE_FIRST` × ``target`` vertices it is first brought down to that many by quadric
+  decimation (fast-simplification), because remeshing costs grow with the input (539k vertices:
+  26 s, against 2.6 s after decimating to 32k; docs/benchmarks.md).
+* The result is repaired like any input (:func:`allorules.preparation.prepare_mesh`: merged
+  vertices, degenerate and non-manifold faces dropped, oriented outward, largest part kept).
+
+:func:`make_working_mesh` refuses (one :class:`MeshError` line that says why and what to do) a
+body from which no working mesh can be made: a single open sheet, a surface too thin to
+enclose a volume, or one the remesher cannot handle. :func:`check_working_vertices` refuses a
+user-set size out of range before any work.
+
+The result is carried back to the user's mesh by :mod:`allorules.mesh.transfer`; the run pipeline
+(:mod:`allorules.runs.pipeline`) does both.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from allorules.errors import MeshError
+from allorules.mesh.decimate import decimate
+
+log = logging.getLogger(__name__)
+
+# The working size, chosen by measurement (benchmarks/bench_resolution.py, docs/benchmarks.md).
+WORKING_VERTICES = 8000
+MIN_WORKING_VERTICES = 2000      # below this the labeller loses the neck (a 3k cow, issue 16)
+MAX_WORKING_VERTICES = 100000    # the paper's own limit; a 1,000-mode basis stays in minutes
+WORKING_METHOD = "remesh"        # or "decimate" (see make_working_mesh)
+DECIMATE_FIRST = 4               # above this many times the target, decimate before remeshing
+REMESH_ITERATIONS = 10
+# A body is a single sheet when its holes' caps hold more than this share of its surface, and too
+# thin when its enclosed volume over area^1.5 is below THIN (a sphere 0.094, a quadruped 0.02-0.04,
+# a 100 x 100 x 1 plate 0.0035, x 0.2 0.0007).
+SHEET_SHARE = 0.25
+THIN = 1e-3
+
+
+@dataclass(frozen=True)
+class WorkingMesh:
+    """The mesh a run works on, and how it was made from the user's body."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    method: str                       # "as-is", "remeshed", "decimated+remeshed", "decimated"
+    source_vertices: int              # vertices of the user's body
+    target_vertices: int              # the working size asked for
+    seconds: float = 0.0
+    quality: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def is_source(self) -> bool:
+        """The body itself (no transfer needed: results are the body's own)."""
+        return self.method == "as-is"
+
+    def describe(self) -> str:
+        if self.is_source:
+            return f"working mesh: the body itself ({self.source_vertices} vertices, at or below {self.target_vertices})"
+        return (f"working mesh: {len(self.vertices)} vertices {self.method} from {self.source_vertices} "
+                f"(target {self.target_vertices}; smallest angle median {self.quality.get('min_angle_median', 0):.1f}°) "
+                f"in {self.seconds:.1f} s")
+
+
+def check_working_vertices(count: int | None) -> int:
+    """The working size to use: ``count`` (a user's ``--working-vertices``) or the default.
+    Raises :class:`MeshError` for a size out of [MIN_WORKING_VERTICES, MAX_WORKING_VERTICES]."""
+    if count is None:
+        return WORKING_VERTICES
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) and not float(count).is_integer():
+        raise MeshError(f"--working-vertices must be a whole number, got {count!r}")
+    count = int(count)
+    if not MIN_WORKING_VERTICES <= count <= MAX_WORKING_VERTICES:
+        raise MeshError(
+            f"--working-vertices {count} is out of range: use {MIN_WORKING_VERTICES} to {MAX_WORKING_VERTICES} "
+            f"(default {WORKING_VERTICES}); below, the regions cannot be found, above, the basis takes too long"
+        )
+    return count
+
+
+def triangle_quality(vertices: np.ndarray, faces: np.ndarray) -> dict[str, float]:
+    """Smallest angle of each triangle: its minimum, 1st percentile and median (degrees), and the
+    share of triangles whose smallest angle is under 10° (60° everywhere is equilateral)."""
+    corners = np.asarray(vertices, dtype=float)[np.asarray(faces)]
+    smallest = np.full(len(corners), np.inf)
+    for k in range(3):
+        a = corners[:, (k + 1) % 3] - corners[:, k]
+        b = corners[:, (k + 2) % 3] - corners[:, k]
+        cosine = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        smallest = np.minimum(smallest, np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    if not len(smallest):
+        return {"min_angle": 0.0, "min_angle_p1": 0.0, "min_angle_median": 0.0, "below_10": 1.0}
+    return {"min_angle": float(smallest.min()), "min_angle_p1": float(np.percentile(smallest, 1)),
+            "min_angle_median": float(np.median(smallest)), "below_10": float(np.mean(smallest < 10.0))}
+
+
+def check_body_shape(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh") -> None:
+    """Refuse a body that no working mesh can represent: a single open sheet, or a surface too thin
+    to enclose a volume (the method measures masses as enclosed volumes)."""
+    from allorules.mesh.geometry import enclosed_volume, face_areas
+    from allorules.mesh.topology import cap_holes
+
+    area = float(face_areas(vertices, faces).sum())
+    capped_vertices, capped_faces = cap_holes(vertices, faces)
+    cap_area = float(face_areas(capped_vertices, capped_faces[len(faces):]).sum())
+    if area <= 0 or not math.isfinite(area):
+        raise MeshError(f"{name}: the surface has no area; export the animal as a triangle mesh")
+    if cap_area > SHEET_SHARE * area:
+        raise MeshError(
+            f"{name}: the body is a single open sheet (its holes are {cap_area / area:.0%} of its surface), not an "
+            "animal's skin; close it in your modelling tool (or export the whole body, not one side of it)")
+    volume = abs(enclosed_volume(capped_vertices, capped_faces))
+    if volume / area ** 1.5 < THIN:
+        raise MeshError(
+            f"{name}: the body encloses almost no volume (volume / area^1.5 = {volume / area ** 1.5:.1e}, under {THIN:g}): "
+            "it is too thin or flat to weigh; give a closed animal body")
+
+
+def make_working_mesh(vertices: np.ndarray, faces: np.ndarray, target: int | None = None, *,
+                      name: str = "mesh", method: str | None = None) -> WorkingMesh:
+    """The working mesh of a prepared body (vertices, faces): the body itself when it has at most
+    ``target`` vertices (default :data:`WORKING_VERTICES`), else an isotropic remesh of about
+    ``target`` vertices (within ~5 %), or with ``method="decimate"`` a quadric decimation to it
+    (keeps the input's own density: more vertices where it is curved; default
+    :data:`WORKING_METHOD`). Raises :class:`MeshError` when none can be made."""
+    import time
+
+    target = check_working_vertices(target)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(vertices) <= target:
+        return WorkingMesh(vertices, faces, "as-is", len(vertices), target)
+    started = time.perf_counter()
+    check_body_shape(vertices, faces, name)
+    method = method or WORKING_METHOD
+    if method not in ("remesh", "decimate"):
+        raise ValueError(f"unknown working mesh method {method!r}: remesh or decimate")
+    attempts = []
+    if method == "decimate":
+        attempts.append(("decimated", lambda: decimate(vertices, faces, target)))
+    if len(vertices) > DECIMATE_FIRST * target:
+        # quadric decimation can leave a few non-manifold edges: repaired before remeshing
+        attempts.append(("decimated+remeshed", lambda: _repaired(*decimate(vertices, faces, DECIMATE_FIRST * target), name)))
+    attempts.append(("remeshed", lambda: (vertices, faces)))
+    failure = None
+    for method, source in attempts:
+        try:
+            remeshed_vertices, remeshed_faces = source() if method == "decimated" else _remesh(*source(), target)
+            break
+        except Exception as error:   # the remesher raises ValueError/RuntimeError for broken input
+            log.debug("%s: %s failed (%s)", name, method, error)
+            failure = error
+    else:
+        raise MeshError(f"{name}: cannot make a working mesh from it ({failure}); repair the mesh in your modelling "
+                        "tool (non-manifold or self-overlapping parts) or set --working-vertices "
+                        f"{len(vertices)} to work on it as it is") from None
+    working_vertices, working_faces = _repaired(remeshed_vertices, remeshed_faces, name)
+    if len(working_vertices) < 0.5 * target:
+        raise MeshError(f"{name}: the working mesh came out with {len(working_vertices)} vertices for {target}: the "
+                        "surface is too broken to remesh; repair it in your modelling tool")
+    quality = triangle_quality(working_vertices, working_faces)
+    working = WorkingMesh(working_vertices, working_faces, method, len(vertices), target,
+                          time.perf_counter() - started, quality)
+    log.info("%s", working.describe())
+    return working
+
+
+def _remesh(vertices: np.ndarray, faces: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray]:
+    """Isotropic remeshing (gpytoolbox.remesh_botsch) to the edge length h of an equilateral mesh
+    with ``target`` vertices on the same area: a closed mesh of n vertices has about 2n faces of
+    area √3/4 h², so h = √(2 A / (√3 n)). One correction of h by the count it gave."""
+    import gpytoolbox
+
+    from allorules.mesh.geometry import face_areas
+
+    area = float(face_areas(vertices, faces).sum())
+    length = math.sqrt(2.0 * area / (math.sqrt(3.0) * target))
+    faces32 = np.ascontiguousarray(faces, dtype=np.int32)
+    result_vertices, result_faces = gpytoolbox.remesh_botsch(vertices, faces32, i=REMESH_ITERATIONS, h=length)
+    if abs(len(result_vertices) / target - 1.0) > 0.05:
+        length *= math.sqrt(len(result_vertices) / target)
+        result_vertices, result_faces = gpytoolbox.remesh_botsch(vertices, faces32, i=REMESH_ITERATIONS, h=length)
+    return np.asarray(result_vertices, dtype=np.float64), np.asarray(result_faces, dtype=np.int64)
+
+
+def _repaired(vertices: np.ndarray, faces: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The remesh through the same repairs as any input (one home for them: prepare_mesh)."""
+    import trimesh
+
+    from allorules.mesh.repair import prepare_mesh
+
+    prepared = prepare_mesh(trimesh.Trimesh(vertices, faces, process=False))
+    for repair in prepared.repairs:
+        log.debug("%s: working mesh: %s", name, repair)
+    return prepared.vertices, prepared.faces

@@ -1,0 +1,137 @@
+"""Stands where it stood, and the quality measures of an output (issue 18)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from allorules.body import Body
+from allorules.measure.features import (
+    SmallFeature,
+    feature_shape_change,
+    find_small_features,
+    similarity_fit,
+)
+from allorules.measure.ground import GroundError, ground_contact, place_on_ground
+from allorules.measure.quality import (
+    flipped_faces,
+    intersecting_face_pairs,
+    quality_report,
+    rule_checks,
+    self_intersections,
+    surface_roughness,
+)
+
+
+def _turn(vertices, seed=3):
+    rotation = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))[0]
+    return vertices @ rotation.T * 7.5 + np.array([3.0, -2.0, 11.0]), rotation
+
+
+@pytest.mark.parametrize("factor", [2 ** (1 / 3), 0.5 ** (1 / 3)])
+def test_scaled_animal_stands_on_the_inputs_ground(generated_horse, factor):
+    """Scaled about its centroid, a ×2 animal sinks and a ×0.5 one floats; placed, its feet are on
+    the input's ground at the same place (to 0.5 % of its height), also turned and in other units."""
+    from allorules.body import Frame
+
+    for turned in (False, True):
+        body = generated_horse.body()
+        if turned:
+            vertices, rotation = _turn(body.vertices)
+            body = Body(vertices, body.faces, body.labels, body.region_names,
+                        Frame(up=rotation @ body.frame.up, forward=rotation @ body.frame.forward))
+        up = body.frame.up
+        height = float(np.ptp(body.vertices @ up))
+        centre = body.vertices.mean(axis=0)
+        scaled = centre + factor * (body.vertices - centre)
+        before = ground_contact(body)
+        sunk = before.at(scaled)
+        assert abs(sunk.height - before.height) > 0.05 * height        # the centroid scaling is off the ground
+        placed = place_on_ground(body, scaled)
+        after = before.at(placed)
+        assert abs(after.height - before.height) <= 0.005 * height
+        assert np.allclose(after.contacts @ up, before.height, atol=0.005 * height)   # all four feet down
+        assert np.linalg.norm(after.anchor - before.anchor) <= 0.005 * height
+        assert np.allclose(place_on_ground(body, scaled, anchor="centroid"), scaled)
+
+
+def test_ground_needs_an_up_direction():
+    mesh = trimesh.creation.icosphere(2)
+    with pytest.raises(GroundError, match="up"):
+        ground_contact(Body(mesh.vertices, mesh.faces))
+    contact = ground_contact(Body(mesh.vertices, mesh.faces), up=[0, 0, 1])
+    assert contact.height == pytest.approx(-1.0, abs=0.01)
+
+
+def _two_spheres(offset):
+    first = trimesh.creation.icosphere(2)
+    second = trimesh.creation.icosphere(2)
+    vertices = np.vstack([first.vertices, second.vertices + [offset, 0, 0]])
+    faces = np.vstack([first.faces, second.faces + len(first.vertices)])
+    labels = np.r_[np.zeros(len(first.vertices), int), np.ones(len(second.vertices), int)]
+    return Body(vertices, faces, labels, ("forelimbs", "hindlimbs"))
+
+
+def test_self_intersections_are_counted_with_the_regions_that_touch():
+    apart = _two_spheres(2.5)
+    assert len(intersecting_face_pairs(apart.vertices, apart.faces)) == 0
+    overlapping = _two_spheres(1.5)
+    found = self_intersections(overlapping)
+    assert found.pairs > 20 and found.faces > 20
+    assert set(found.regions) == {"forelimbs|hindlimbs"}
+    moved = self_intersections(apart, overlapping.vertices)      # as an output of the apart input
+    assert moved.new_pairs == moved.pairs == found.pairs
+    # a closed surface alone (neighbouring faces share vertices) has none
+    sphere = trimesh.creation.icosphere(3)
+    assert len(intersecting_face_pairs(sphere.vertices, sphere.faces)) == 0
+
+
+def test_flips_and_roughness_against_uniform_scaling():
+    sphere = trimesh.creation.icosphere(3)
+    body = Body(sphere.vertices, sphere.faces)
+    assert flipped_faces(body, 2.0 * sphere.vertices).count == 0
+    assert surface_roughness(sphere.vertices, 2.0 * sphere.vertices + 5, sphere.faces).rms_degrees < 1e-6
+    bumpy = sphere.vertices * (1 + 0.05 * np.sin(9 * sphere.vertices[:, :1]))
+    assert surface_roughness(sphere.vertices, bumpy, sphere.faces).rms_degrees > 0.5
+    mirrored = sphere.vertices * [1, 1, -1]     # a mirror turns n into −M n: faces facing sideways flip
+    normals = sphere.face_normals
+    expected = int(np.sum(normals[:, 0] ** 2 + normals[:, 1] ** 2 >= normals[:, 2] ** 2))
+    assert 0 < flipped_faces(body, mirrored).count == expected
+
+
+def test_shape_change_removes_similarity_and_sees_stretching():
+    points = np.random.default_rng(0).normal(size=(60, 3))
+    feature = SmallFeature("protrusion", np.arange(60), 0, 0.01, 0.1)
+    moved, rotation = _turn(points)
+    scale, fitted, _ = similarity_fit(points, moved)
+    assert scale == pytest.approx(7.5) and np.allclose(fitted, rotation)
+    assert feature_shape_change(points, moved, feature).shape_change < 1e-9
+    stretched = points * [1.3, 1.0, 1.0]
+    change = feature_shape_change(points, stretched, feature).shape_change
+    assert 0.05 < change < 0.3
+
+
+def test_small_features_of_the_generated_horse_are_its_ends(generated_horse):
+    """Hooves, the tail's tip and the muzzle are found; legs, neck and tail are not small."""
+    features = find_small_features(generated_horse.vertices, generated_horse.faces)
+    assert len(features) >= 5
+    names = generated_horse.region_names
+    regions = {names[np.bincount(generated_horse.labels[f.vertices]).argmax()] for f in features}
+    assert {"forelimbs", "hindlimbs", "tail", "head"} <= regions
+    area = sum(f.area_share for f in features)
+    assert area < 0.1                                          # small: legs and tail are not taken whole
+
+
+def test_rule_checks_and_report_are_json_ready(generated_horse):
+    import json
+    from types import SimpleNamespace
+
+    checks = rule_checks([SimpleNamespace(id="a", exponent=0.36, achieved_exponent=0.37),
+                          SimpleNamespace(id="b", exponent=0.36, achieved_exponent=0.39)], tolerance=0.02)
+    assert [check.met for check in checks] == [True, False]
+    body = generated_horse.body()
+    report = quality_report(body, 1.2 * body.vertices, rules=[SimpleNamespace(id="a", exponent=1, achieved_exponent=1)])
+    data = json.loads(json.dumps(report.as_dict()))
+    assert data["flipped_faces"]["count"] == 0 and data["self_intersections"]["pairs"] == 0
+    assert data["worst_feature_change"] < 1e-9 and data["roughness"]["rms_degrees"] < 1e-6
+    assert all(abs(leg["tilt_degrees"]) < 1e-6 for leg in data["legs"]) and len(data["legs"]) == 4

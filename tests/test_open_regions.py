@@ -1,0 +1,99 @@
+"""Open regions are isometric by default (METHOD §10, issue 18)."""
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from allorules.errors import RulesetError
+from allorules.plugins.registry import registry_for
+from allorules.rules.model import OpenRegions, ruleset_to_dict
+from allorules.rules.resolve import check_ruleset, load_ruleset
+from allorules.solve.open_regions import extra_regions, open_regions
+
+
+def _write(tmp_path, text, name="set.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_default_is_isometric_length_and_mass():
+    ruleset = load_ruleset("quadruped")
+    assert ruleset.open_regions == OpenRegions()
+    assert ruleset.open_regions.default == "isometric"
+    assert ruleset.open_regions.measures == ("length", "mass")
+
+
+def test_word_mapping_and_per_region_settings(tmp_path):
+    free = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions: free\n"))
+    assert free.open_regions.default == "free"
+    mixed = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  default: free\n  weight: 0.5\n"
+                                          "  measures: [length]\n  regions: {neck: isometric, tail: isometric}\n"))
+    assert mixed.open_regions.setting("neck") == "isometric"
+    assert mixed.open_regions.setting("chest") == "free"
+    assert mixed.open_regions.weight == 0.5 and mixed.open_regions.measures == ("length",)
+    # a child overrides one region and keeps the rest
+    child = load_ruleset(_write(tmp_path, f"extends: {tmp_path / 'set.yaml'}\nopen_regions:\n  regions: {{tail: free}}\n",
+                                "child.yaml"))
+    assert child.open_regions.setting("tail") == "free" and child.open_regions.setting("neck") == "isometric"
+    # the resolved document loads back into the same setting
+    again = load_ruleset(_write(tmp_path, yaml.safe_dump(ruleset_to_dict(mixed)), "again.yaml"))
+    assert again.open_regions == mixed.open_regions
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("open_regions: frea\n", "2:15: open_regions must be 'isometric', 'free' or a mapping"),
+    ("open_regions:\n  defualt: free\n", "3:3: unknown key 'defualt' in open_regions; did you mean 'default'?"),
+    ("open_regions:\n  measures: [lenght]\n", "3:13: open_regions.measures: 'lenght' is not a measure of a region; did you mean 'length'?"),
+    ("open_regions:\n  regions: {neck: iso}\n", "3:19: open_regions.regions.neck 'iso' is not one of 'isometric', 'free'"),
+    ("open_regions: 3\n", "2:15: open_regions must be 'isometric', 'free' or a mapping"),
+    ("solver:\n  detail_cutoff: -3\n", "3:18: solver.detail_cutoff must be a positive number of modes or null"),
+])
+def test_bad_settings_name_file_and_line(tmp_path, text, expected):
+    path = _write(tmp_path, "extends: quadruped\n" + text)
+    problems = check_ruleset(path)
+    assert problems and isinstance(problems[0], RulesetError)
+    assert f"{path}:{expected}" in str(problems[0]), str(problems[0])
+
+
+def test_a_rule_replaces_the_default_and_appendages_are_open(generated_horse, tmp_path):
+    body = generated_horse.body()            # the generator's labels include a tail
+    quadruped = load_ruleset("quadruped")
+    assert open_regions(quadruped, body) == {"neck": "isometric"}          # appendages only when named
+    assert extra_regions(quadruped, body) == ()
+    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  regions: {tail: isometric}\n"))
+    assert open_regions(named, body) == {"neck": "isometric", "tail": "isometric"}
+    assert extra_regions(named, body) == ("tail",)
+    override = load_ruleset("neck-override")
+    assert "neck" not in open_regions(override, body)         # its neck-length rule replaces the default
+
+
+@pytest.mark.slow
+def test_open_neck_is_held_isometric_when_asked_and_neck_override_still_controls(tmp_path):
+    """The demo's animal (2,000 vertices, 60 modes) at ×2: held with weight 1 (a ruleset's
+    open_regions), the open neck's length and mass exponents stay within ±0.02 of 1/3 and 1 (it was
+    free before and grew: neck/body 0.177 → 0.228 with this measure); neck-override's rule still
+    moves it where it is told. (The default weight, 0.01, keeps every rule converging on the test
+    animals but holds the neck only loosely: docs/method.md, open regions.)"""
+    from allorules.body import Body
+    from allorules.mesh.quadruped import generate_quadruped
+    from allorules.runs.ruleset_run import scale_with_ruleset
+    from allorules.segment.labeller import label_quadruped
+
+    generated = generate_quadruped("horse", 2000)
+    body = label_quadruped(Body(generated.vertices, generated.faces))
+    registry = registry_for(None)
+    held = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions: {weight: 1}\n"), registry)
+    result = scale_with_ruleset(body, held, 2.0, registry=registry, modes=60, use_cache=False)
+    assert result.converged, result.messages
+    neck = {outcome.measure: outcome for outcome in result.open_regions if outcome.region == "neck"}
+    assert abs(neck["length"].achieved_exponent - 1 / 3) <= 0.02
+    assert abs(neck["mass"].achieved_exponent - 1.0) <= 0.02
+    assert all(outcome.met for outcome in result.open_regions)
+    assert "open_regions" in result.as_dict()
+    ruleset = load_ruleset(_write(tmp_path, "extends: neck-override\nrules:\n  - id: neck-length\n    exponent: 0.5\n"),
+                           registry)
+    controlled = scale_with_ruleset(body, ruleset, 2.0, registry=registry, modes=60, use_cache=False)
+    achieved = {rule.id: rule.achieved_exponent for rule in controlled.rules}
+    assert abs(achieved["neck-length"] - 0.5) <= 0.02
+    assert not [outcome for outcome in controlled.open_regions if outcome.region == "neck"]

@@ -1,0 +1,91 @@
+"""Tests of allorules.working_mesh: size, quality, the body kept as it is, and clear refusals."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from allorules.errors import MeshError
+from allorules.mesh.working import (
+    MAX_WORKING_VERTICES,
+    MIN_WORKING_VERTICES,
+    WORKING_VERTICES,
+    check_working_vertices,
+    make_working_mesh,
+    triangle_quality,
+)
+
+
+def test_a_body_at_or_below_the_working_size_is_used_as_it_is() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=4)          # 2,562 vertices
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    working = make_working_mesh(vertices, faces, 2562)
+    assert working.is_source and working.vertices is vertices and working.faces is faces
+    assert make_working_mesh(vertices, faces).is_source       # the default is larger
+
+
+def test_a_larger_body_is_remeshed_to_the_size_with_good_triangles(generated_horse) -> None:
+    body = generated_horse.body()
+    working = make_working_mesh(body.vertices, body.faces, 2000)
+    assert working.method == "remeshed" and working.source_vertices == len(body.vertices)
+    assert abs(len(working.vertices) / 2000 - 1) < 0.05
+    quality = triangle_quality(working.vertices, working.faces)
+    before = triangle_quality(body.vertices, body.faces)
+    assert quality["min_angle_median"] > 50 and quality["below_10"] < 0.001
+    assert quality["min_angle_median"] > before["min_angle_median"]
+    # the same surface: every working vertex lies on the body
+    from allorules.mesh.transfer import bind
+
+    distance = np.linalg.norm(bind(working.vertices, body.vertices, body.faces).offset, axis=1)
+    size = np.linalg.norm(np.ptp(body.vertices, axis=0))
+    assert distance.max() < 2e-3 * size
+    # one closed, outward body; its volume a little smaller (the chords of a coarser mesh cut
+    # inside a curved surface: 1.4 % at 2,000 vertices of the 3,000-vertex horse)
+    from allorules.body import Body
+    from allorules.measure.mass import body_mass
+
+    assert -0.03 < body_mass(Body(working.vertices, working.faces)) / body_mass(body) - 1 < 0
+
+
+def test_a_fine_body_is_decimated_first_then_remeshed() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=5)          # 10,242 vertices > 4 × 2,000
+    mesh.vertices *= [2.0, 1.0, 0.7]
+    working = make_working_mesh(mesh.vertices, mesh.faces, 2000)
+    assert working.method == "decimated+remeshed" and abs(len(working.vertices) / 2000 - 1) < 0.05
+    assert working.quality["min_angle_median"] > 50
+
+
+def test_an_open_body_with_holes_keeps_its_holes() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=5)
+    keep = ~((mesh.triangles_center[:, 2] > 0.9) | (np.abs(mesh.triangles_center[:, 0]) > 0.95))  # three holes
+    vertices, faces = mesh.vertices, mesh.faces[keep]
+    working = make_working_mesh(vertices, faces, 2000)
+    from allorules.mesh.topology import count_boundary_loops
+
+    assert count_boundary_loops(working.faces) == 3
+
+
+@pytest.mark.parametrize("count", [MIN_WORKING_VERTICES - 1, MAX_WORKING_VERTICES + 1, 0, -5, 2500.5])
+def test_a_working_size_out_of_range_is_refused_before_any_work(count) -> None:
+    with pytest.raises(MeshError, match="working-vertices"):
+        check_working_vertices(count)
+    with pytest.raises(MeshError, match="working-vertices"):
+        make_working_mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=int), count)   # refused before looking at the mesh
+
+
+def test_the_default_and_a_valid_size() -> None:
+    assert check_working_vertices(None) == WORKING_VERTICES
+    assert check_working_vertices(12000) == 12000
+
+
+def test_a_single_sheet_is_refused_with_what_to_do() -> None:
+    sheet = trimesh.creation.icosphere(subdivisions=5)
+    sheet = sheet.submesh([np.flatnonzero(sheet.triangles_center[:, 2] > 0.1)], append=True)   # a bowl
+    with pytest.raises(MeshError, match="single open sheet.*close it"):
+        make_working_mesh(sheet.vertices, sheet.faces, 2000)
+
+
+def test_a_flat_plate_is_refused_as_too_thin() -> None:
+    plate = trimesh.creation.box(extents=[100.0, 100.0, 0.2]).subdivide_to_size(2.0)
+    with pytest.raises(MeshError, match="too thin"):
+        make_working_mesh(plate.vertices, plate.faces, 2000)
