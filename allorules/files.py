@@ -82,6 +82,31 @@ def protection_scope() -> Iterator[None]:
 
 
 # ---------------------------------------------------------------------------------------------
+# Text files a user gives (rulesets, merge files, manifests): bounded
+
+# A ruleset or merge file is a few kilobytes, a manifest of 10,000 meshes under 1 MB.
+MAX_TEXT_BYTES = 2_000_000
+
+
+def text_limit() -> int:
+    """The largest YAML file read: :data:`MAX_TEXT_BYTES`, or ``ALLORULES_YAML_MAX_BYTES``."""
+    text = os.environ.get("ALLORULES_YAML_MAX_BYTES")
+    try:
+        return max(1, int(text)) if text else MAX_TEXT_BYTES
+    except ValueError:
+        return MAX_TEXT_BYTES
+
+
+def text_size_problem(size: int, kind: str) -> str | None:
+    """Why a ``kind`` file of ``size`` bytes is not read (too large), or None."""
+    largest = text_limit()
+    if size <= largest:
+        return None
+    return (f"the {kind} is {size / 1e6:.1f} MB; allorules reads YAML files of at most {largest / 1e6:g} MB (a {kind} "
+            "is usually a few kilobytes): is it the right file? (ALLORULES_YAML_MAX_BYTES raises the limit)")
+
+
+# ---------------------------------------------------------------------------------------------
 # Outputs checked before the work
 
 

@@ -75,17 +75,23 @@ def run_show(arguments: argparse.Namespace) -> int:
 
 
 def run_check(arguments: argparse.Namespace) -> int:
+    from allorules.errors import RulesetError, RulesetProblems
     from allorules.plugins.registry import registry_for
-    from allorules.rules.resolve import check_ruleset, load_ruleset
+    from allorules.rules.resolve import load_ruleset
 
     registry = registry_for(arguments)
-    problems = check_ruleset(arguments.ruleset, registry)
+    try:   # read once: every problem, or the ruleset
+        ruleset = load_ruleset(arguments.ruleset, registry)
+        problems: list = []
+    except RulesetProblems as error:
+        problems = error.problems
+    except RulesetError as error:
+        problems = [error]
     if problems:
         for problem in problems:
             print(f"error: {problem}", file=sys.stderr)
         print(f"{arguments.ruleset}: {len(problems)} problem{'s' if len(problems) != 1 else ''}", file=sys.stderr)
         return 1
-    ruleset = load_ruleset(arguments.ruleset, registry)
     print(f"{arguments.ruleset}: valid (ruleset {ruleset.name!r}: {len(ruleset.regions)} regions, "
           f"{len(ruleset.rules)} rules, {len(ruleset.constraints)} constraints)")
     return 0

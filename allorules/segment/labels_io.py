@@ -32,7 +32,7 @@ import yaml
 
 from allorules.body import UNLABELLED, Body, Labelling
 from allorules.errors import RulesetError, SegmentationError, SourceLocation
-from allorules.files import atomic_write
+from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
 from allorules.segment.regions import QUADRUPED_REGIONS
 
@@ -187,6 +187,9 @@ def read_merge_file(path: str | Path, patch_count: int, required: tuple[str, ...
     required = QUADRUPED_REGIONS if required is None else tuple(required)
     path = Path(path)
     try:
+        too_large = text_size_problem(path.stat().st_size, "merge file") if path.is_file() else None
+        if too_large:
+            raise MergeFileError(too_large, SourceLocation(path))
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise MergeFileError("merge file not found", SourceLocation(path)) from None
