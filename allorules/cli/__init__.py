@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("demo", "scale the built-in quadruped globally and biology-aware; write meshes, gallery and reports"),
     "batch": ("batch", "run many meshes × ratios × rulesets from a manifest, in parallel; resumes where it stopped"),
     "generate": ("generate", "write a generated quadruped (closed mesh with known regions and measurements)"),
+    "cache": ("cache", "where the harmonic-basis cache is, how big, how many entries; 'cache clear' empties it"),
 }
 
 log = logging.getLogger("allorules")
