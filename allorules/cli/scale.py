@@ -240,7 +240,7 @@ def run(arguments: argparse.Namespace) -> int:
     write_report(arguments.report, report)
     print(summary(scaling, result_run.result, report, written or output))
     if not result_run.converged:
-        for message in result_run.result.messages:
+        for message in result_run.result.messages[1:]:   # the first one is the error line's
             log.warning("%s", message)
         where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
             f"no mesh written (use --keep-unconverged to write it as {output.stem}.unconverged{output.suffix})"
