@@ -23,7 +23,8 @@ from allorules.plugins import MeasureSpec, hookimpl
 
 @hookimpl
 def allorules_measures():
-    return [MeasureSpec(name="one", kind="length", isometric_exponent=1 / 3, compute=lambda body, region: 1.0)]
+    return [MeasureSpec(name="one", kind="length", isometric_exponent=1 / 3, compute=lambda body, region: 1.0,
+                        description="one")]
 """
 
 

@@ -29,11 +29,12 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Sequence
 
 from allorules.errors import AllorulesError, ScalingError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
 
 log = logging.getLogger("allorules")
 
@@ -146,6 +147,8 @@ def choose_folder(output: str | Path | None, *, force: bool = False) -> Path:
 def label_agreement(generated, labelled) -> float:
     """Share of the surface (by vertex area) where the automatic labels match the generator's
     regions (its tail counted as abdomen, as the labeller does)."""
+    import numpy as np
+
     from allorules.segment.regions import NEIGHBOUR_REGION
     from allorules.spectral.laplacian import lumped_mass
 
@@ -302,6 +305,8 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
         run.error = str(error)
     run.seconds = time.perf_counter() - start
     if result is not None:
+        import numpy as np
+
         run.vertices = np.asarray(result.body.vertices)
         run.result = result.as_dict()
         run.rules = rule_outcomes(body, result.body, ruleset, registry, ratio)
