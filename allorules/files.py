@@ -135,21 +135,22 @@ JSON = (".json",)
 
 
 def check_outputs(outputs: Iterable[Output | None], inputs: Mapping[str, PathLike | Iterable[PathLike] | None] = {},
-                  *, force: bool = False) -> None:
+                  *, force: bool = False, force_option: str = "--force") -> None:
     """Check every output a command will write, before it does any work, and protect its inputs.
 
     Refused with an :class:`OutputError` that names the option: an output that is one of the
     ``inputs`` (by real path or inode; ``force`` never applies to inputs), two outputs that are
     the same file, a wrong extension, a folder where a file is wanted (or a file where a folder
     is), an existing file without ``force``, a read-only file, and a folder that is missing or
-    cannot be written to (tried by creating a file in it).
+    cannot be written to (tried by creating a file in it). ``force_option`` is how the caller's
+    user says "replace" (``overwrite=True`` in the Python API).
     """
     protect(inputs)
     seen: dict[Any, Output] = {}
     for output in outputs:
         if output is None:
             continue
-        _check_output(output, force)
+        _check_output(output, force, force_option)
         for identity in _identities(output.path)[:1]:
             if identity in seen:
                 first = seen[identity]
@@ -158,13 +159,13 @@ def check_outputs(outputs: Iterable[Output | None], inputs: Mapping[str, PathLik
             seen[identity] = output
 
 
-def _check_output(output: Output, force: bool) -> None:
+def _check_output(output: Output, force: bool, force_option: str = "--force") -> None:
     path, option = output.path, output.option
     shown = f"{option} {path}"
     protected = protected_as(path)
     if protected is not None:
         raise OutputError(f"{shown}: that is the {protected}, an input of this command; an input is never "
-                          "overwritten (not even with --force): choose another name")
+                          f"overwritten (not even with {force_option}): choose another name")
     if output.extensions and not output.folder and path.suffix.lower() not in output.extensions:
         wanted = " or ".join(output.extensions)
         raise OutputError(f"{shown}: the name must end in {wanted}, not {path.suffix or '(no extension)'}; "
@@ -178,7 +179,7 @@ def _check_output(output: Output, force: bool) -> None:
         raise OutputError(f"{shown}: is a folder; give a file name, e.g. {path / ('output' + (output.extensions or ('',))[0])}")
     if path.exists() or path.is_symlink():
         if not force:
-            raise OutputError(f"{shown}: already exists; choose another name, or add --force to replace it")
+            raise OutputError(f"{shown}: already exists; choose another name, or add {force_option} to replace it")
         if not os.access(path, os.W_OK, follow_symlinks=True) and path.exists():
             raise OutputError(f"{shown}: the file is read-only; make it writable or choose another name")
     folder = path.parent

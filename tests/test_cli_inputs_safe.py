@@ -139,3 +139,16 @@ def test_spectrum_keeps_the_old_plot_spelling_with_a_note(folder, capsys):
     code = main(["spectrum", "bone.obj", "--modes", "20", "--plot", "spectrum.png"])
     assert code == 0 and (folder / "spectrum.png").stat().st_size > 1000
     assert "--plot is deprecated" in capsys.readouterr().err
+
+
+def test_the_python_api_protects_its_inputs_too(folder, no_work):
+    from allorules.api import OutputError, scale_mesh
+
+    before = hashes(folder)
+    for output, overwrite, message in (("bone.obj", True, "input mesh .*not even with overwrite=True"),
+                                       ("old.png", False, "must end in .obj"),
+                                       ("bone.labels.json", True, "labels file")):
+        with pytest.raises(OutputError, match=message):
+            scale_mesh(folder / "bone.obj", 2.0, ruleset=None, output=folder / output, overwrite=overwrite,
+                       labels=folder / "bone.labels.json")
+    assert hashes(folder) == before
