@@ -108,3 +108,25 @@ def test_the_command_line_says_it_in_one_line(tmp_path, capsys, name, data, mess
     assert main(["spectrum", str(path), "--modes", "3"]) != 0
     error = capsys.readouterr().err.strip()
     assert message in error and len(error.splitlines()) == 1 and "No module" not in error
+
+
+@pytest.mark.parametrize("vertices, message", [
+    ("v 1e308 0 0\nv -1e308 0 0\nv 0 1e308 0\nv 0 0 1e308\n", "coordinates as large as 1e\\+308"),
+    ("v 1e-40 0 0\nv 0 0 0\nv 0 1e-40 0\nv 0 0 1e-40\n", "1e-40 units across"),
+    ("v 0 0\nv 1 0\nv 0 1\nv 1 1\n", "vertices have 2 coordinates, a 3-D mesh needs three"),
+])
+def test_coordinates_that_cannot_be_measured_are_refused(tmp_path, capsys, vertices, message):
+    path = write(tmp_path, "odd.obj", vertices + FACES)
+    with pytest.raises(MeshError, match=message):
+        load_mesh(path)
+    assert main(["spectrum", str(path), "--modes", "3"]) != 0
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "Warning" not in error   # no NumPy overflow warning either
+
+
+def test_library_messages_do_not_reach_the_user(tmp_path, capsys):
+    """trimesh logs 'triangulating faces' at INFO; only allorules' own messages are shown."""
+    path = write(tmp_path, "quads.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
+                 "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n")
+    main(["spectrum", str(path), "--modes", "3"])
+    assert "triangulating" not in capsys.readouterr().err

@@ -87,8 +87,16 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 
 def configure_logging(arguments: argparse.Namespace) -> None:
+    """allorules' own messages at the level asked for; the libraries' (trimesh, matplotlib, ...)
+    only when they warn. Numerical warnings (overflow in a NumPy expression) are not shown: what
+    they lead to is checked and said in words; --debug shows them."""
     level = logging.WARNING if arguments.quiet else logging.DEBUG if arguments.verbose else logging.INFO
-    logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr, force=True)
+    logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stderr, force=True)
+    log.setLevel(level)
+    if not arguments.debug:
+        import warnings
+
+        warnings.filterwarnings("ignore", category=RuntimeWarning)
 
 
 def main(argv: list[str] | None = None) -> int:

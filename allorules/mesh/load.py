@@ -74,7 +74,34 @@ def load_mesh(path: str | Path):
         vertices = len(_VERTEX.findall(text)) if suffix == ".obj" else len(loaded.vertices)
         raise MeshError(f"{path}: holds {vertices} vertices but no faces (a point cloud, not a surface); "
                         "allorules needs a triangle mesh: export the surface with its faces")
+    _check_coordinates(path, loaded.vertices)
     return loaded
+
+
+# Areas and volumes are squares and cubes of lengths: beyond these sizes they overflow or vanish.
+LARGEST_EXTENT, SMALLEST_EXTENT = 1e30, 1e-30
+
+
+def _check_coordinates(path: Path, vertices) -> None:
+    """Three coordinates per vertex, and a size whose areas and volumes are representable (NaN
+    and infinite coordinates are left to preparation, which counts them)."""
+    import numpy as np
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        given = vertices.shape[1] if vertices.ndim == 2 else 1
+        raise MeshError(f"{path}: its vertices have {given} coordinate{'s' * (given != 1)}, a 3-D mesh needs three "
+                        "(x y z); the file is damaged or not a 3-D mesh")
+    finite = vertices[np.isfinite(vertices).all(axis=1)]
+    if len(finite) < 2:
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float(np.max(finite.max(axis=0) - finite.min(axis=0)))
+    if not np.isfinite(extent) or extent > LARGEST_EXTENT or 0 < extent < SMALLEST_EXTENT:
+        size = f"{extent:.3g} units across" if np.isfinite(extent) else \
+            f"coordinates as large as {float(np.abs(finite).max()):.3g}"
+        raise MeshError(f"{path}: the mesh has {size}; its areas and volumes cannot be computed at that size: "
+                        "scale it to a usual unit (metres, centimetres) in your modelling tool")
 
 
 def _reason(error: Exception) -> str:
