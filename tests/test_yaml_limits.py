@@ -145,3 +145,20 @@ def test_a_duplicate_key_inside_an_anchor_is_reported_once(tmp_path):
     with pytest.raises(RulesetError) as caught:
         read_located_yaml(path)
     assert "key 'a' is given twice" in str(caught.value) and "more problem" not in str(caught.value)
+
+
+def test_nesting_thousands_deep_is_one_line_in_merge_and_labels_files(tmp_path):
+    from allorules.body import Body
+    from allorules.errors import SegmentationError
+    from allorules.segment.labels_io import read_labels, read_merge_file
+
+    merge = tmp_path / "deep.yaml"
+    merge.write_text("head: " + "[" * 5000 + "]" * 5000 + "\n")
+    assert "nests too deeply" in refusal(read_merge_file, merge, 24)
+    labels = tmp_path / "deep.json"
+    labels.write_text("[" * 100_000 + "]" * 100_000)
+    import numpy as np
+
+    body = Body(np.eye(3), np.array([[0, 1, 2]]))
+    with pytest.raises(SegmentationError, match="nests thousands of levels deep"):
+        read_labels(labels, body)

@@ -70,6 +70,8 @@ def read_labels(path: str | Path, body: Body) -> Body:
         raise SegmentationError(f"{path}: labels file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise SegmentationError(f"{path}: not a readable labels file ({error})") from None
+    except RecursionError:   # '[[[[…' nested deeper than any labels file
+        raise SegmentationError(f"{path}: not an allorules labels file (its JSON nests thousands of levels deep)") from None
     if not isinstance(document, dict) or document.get("format") != LABELS_FORMAT:
         raise SegmentationError(f'{path}: not an allorules labels file (expected "format": "{LABELS_FORMAT}")')
     if document.get("version") != LABELS_VERSION:
@@ -197,6 +199,9 @@ def read_merge_file(path: str | Path, patch_count: int, required: tuple[str, ...
         raise MergeFileError(f"cannot read merge file ({error})", SourceLocation(path)) from None
     try:
         root = yaml.compose(text)
+    except RecursionError:
+        raise MergeFileError("the YAML nests too deeply; a merge file maps each region to a list of patch ids, "
+                             "e.g. 'head: [3, 17]'", SourceLocation(path)) from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
