@@ -145,3 +145,24 @@ def test_a_plugin_that_exits_mid_run_is_named_and_progress_was_shown(tmp_path):
     assert last.startswith("allorules scale: error: plugin 'quits', measure 'quits', called sys.exit(7)")
     assert "scaling steps: step 1/" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "out.obj").exists()
+
+
+def test_sigterm_mid_write_leaves_no_partial_file(tmp_path, monkeypatch, capsys):
+    """kill PID while a picture is being written: the command says 'terminated' (status 143),
+    the temporary file is removed and no half-written output appears."""
+    import signal
+
+    from allorules import files
+
+    real_replace = files.os.replace
+
+    def killed_before_the_rename(source, target):
+        os.kill(os.getpid(), signal.SIGTERM)
+        real_replace(source, target)
+
+    monkeypatch.setattr(files.os, "replace", killed_before_the_rename)
+    previous = signal.getsignal(signal.SIGTERM)
+    assert main(["experiment", "global", "--length", "64", "--png", str(tmp_path / "plot.png")]) == 143
+    assert capsys.readouterr().err.strip().endswith("allorules experiment: terminated")
+    assert list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGTERM) is previous   # the handler is the command's only

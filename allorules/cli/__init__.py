@@ -15,6 +15,7 @@ stay protected from its writes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
@@ -114,10 +115,13 @@ def main(argv: list[str] | None = None) -> int:
     from allorules.files import protection_scope
 
     try:
-        with protection_scope():
+        with protection_scope(), _terminate_cleanly():
             code = int(arguments.run(arguments) or 0)
         sys.stdout.flush()
         return code
+    except Terminated:   # kill PID: files being written are removed, finished ones stay
+        print(f"{where}: terminated", file=sys.stderr)
+        return 143
     except BrokenPipeError:   # the reader went away ('... | head', '... | true'): nothing to say
         return _quiet_broken_pipe()
     except AllorulesError as error:
@@ -147,6 +151,37 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{where}: internal error ({type(error).__name__}: {first}); this is a bug in allorules: "
               "run the command again with --debug and report what it prints", file=sys.stderr)
         return 70
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds the command like Ctrl-C, so that atomic writes remove their
+    temporary files and nothing half-written is left."""
+
+
+@contextlib.contextmanager
+def _terminate_cleanly():
+    """Turn SIGTERM into :class:`Terminated` in this process while the command runs (a process
+    forked from it gets the default behaviour back)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    owner = os.getpid()
+
+    def terminated(signum, frame):
+        if os.getpid() != owner:   # a forked worker: die as SIGTERM says
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _quiet_broken_pipe() -> int:
