@@ -131,7 +131,7 @@ def test_a_plugin_that_exits_mid_run_is_named_and_progress_was_shown(tmp_path):
     assert json.loads(labels.read_text())["regions"] == list(animal.region_names)
     (tmp_path / "quits.py").write_text(
         "import sys\nfrom allorules.plugins import MeasureSpec, hookimpl\ncalls = [0]\n\n\n"
-        "def quits(body, region):\n    calls[0] += 1\n    if calls[0] > 40:\n        sys.exit(7)\n"
+        "def quits(body, region):\n    calls[0] += 1\n    if calls[0] > 8:\n        sys.exit(7)\n"
         "    return 1.0 + 0.001 * calls[0]\n\n\n@hookimpl\ndef allorules_measures():\n"
         "    return [MeasureSpec(name='quits', kind='length', isometric_exponent=1 / 3, compute=quits,\n"
         "                        description='quits')]\n")

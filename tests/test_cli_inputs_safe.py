@@ -48,10 +48,12 @@ def no_work(monkeypatch):
     def started(*args, **kwargs):
         raise AssertionError("the work started before the outputs were checked")
 
+    import allorules.api as api   # imported first, so that it keeps the real pipeline.run
     import allorules.mesh.repair as repair
     import allorules.runs.pipeline as pipeline
 
     monkeypatch.setattr(pipeline, "run", started)
+    monkeypatch.setattr(api, "run", started)
     monkeypatch.setattr(pipeline, "prepare", started)
     monkeypatch.setattr(repair, "prepare_mesh", started)
 
