@@ -23,11 +23,13 @@ from allorules.errors import (
     BasisError,
     MeasurementError,
     MeshError,
+    OutputError,
     PluginError,
     RulesetError,
     ScalingError,
     SegmentationError,
 )
+from allorules.files import Output, check_outputs, protection_scope
 from allorules.measure.girth import region_girth
 from allorules.measure.length import region_length
 from allorules.measure.mass import body_mass, region_mass
@@ -85,26 +87,22 @@ def scale_mesh(
     else:
         loaded = ruleset if isinstance(ruleset, Ruleset) else load_ruleset(ruleset, registry)
         scaling = RulesetScaling(loaded, mass_ratio)
-    if output is not None:
-        _check_output(Path(output), mesh, overwrite)
-    result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress, placement=placement,
-                 working_vertices=working_vertices)
-    if output is not None:
-        if not result.converged:
-            raise ScalingError(f"not written: the run did not reach its targets ({'; '.join(result.result.messages)})",
-                               closest=result.result)
-        save_output(result, output, overwrite=overwrite)
+    with protection_scope():
+        if output is not None:   # before any work; no input (mesh, labels, ruleset, plugin) is ever replaced
+            from allorules.output.export import SUPPORTED_FORMATS
+
+            check_outputs([Output.of(output, "output", SUPPORTED_FORMATS)],
+                          {"input mesh": mesh if isinstance(mesh, (str, Path)) else None, "labels file": labels,
+                           "ruleset": getattr(scaling, "ruleset", None) and scaling.ruleset.path,
+                           "plugin": list(plugins)}, force=overwrite, force_option="overwrite=True")
+        result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress,
+                     placement=placement, working_vertices=working_vertices)
+        if output is not None:
+            if not result.converged:
+                raise ScalingError(f"not written: the run did not reach its targets "
+                                   f"({'; '.join(result.result.messages)})", closest=result.result)
+            save_output(result, output, overwrite=overwrite)
     return result
-
-
-def _check_output(output: Path, mesh: Any, overwrite: bool) -> None:
-    """Before any work: the output is not the input, and not an existing file unless ``overwrite``."""
-    if isinstance(mesh, (str, Path)) and Path(mesh).exists() and output.exists() and output.resolve() == Path(mesh).resolve():
-        raise MeshError(f"{output}: refusing to overwrite the input mesh; choose another output name")
-    if output.exists() and not overwrite:
-        raise MeshError(f"{output}: already exists; pass overwrite=True to replace it")
-    if not output.parent.exists():
-        raise MeshError(f"{output.parent}: folder does not exist")
 
 
 __all__ = [
@@ -115,6 +113,6 @@ __all__ = [
     "body_mass", "region_mass", "region_length", "region_girth", "peak_stress", "SectionChoice",
     "Ruleset", "Rule", "SegmenterUse", "load_ruleset", "list_rulesets", "PluginRegistry", "registry_for",
     "RunProgress",
-    "AllorulesError", "MeshError", "BasisError", "SegmentationError", "MeasurementError", "PluginError",
+    "AllorulesError", "MeshError", "OutputError", "BasisError", "SegmentationError", "MeasurementError", "PluginError",
     "RulesetError", "ScalingError",
 ]

@@ -33,6 +33,11 @@ class MeasurementError(AllorulesError):
     """A quantity (volume, limb cross-section, length, ...) cannot be measured on this mesh."""
 
 
+class OutputError(AllorulesError):
+    """An output cannot be written where asked: it would replace an input, exists, has the wrong
+    extension, or its folder is missing or not writable. Raised before any work starts."""
+
+
 class PluginError(AllorulesError):
     """A plugin failed to load or misbehaved."""
 

@@ -65,7 +65,7 @@ def test_demo_reports(demo):
     assert len(rules) == 6 * len(demo.runs)
     for row in rules:
         assert row["achieved exponent"] is not None and math.isfinite(row["achieved exponent"])
-        assert row["residual"] == pytest.approx(row["achieved exponent"] - row["target exponent"])
+        assert row["exponent error"] == pytest.approx(row["achieved exponent"] - row["target exponent"])
     for row in rules:
         if row["rule"] == "body mass":
             assert row["achieved exponent"] == pytest.approx(1.0, abs=0.02)

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from allorules import files
-from allorules.errors import MeshError
+from allorules.errors import MeshError, OutputError
 from allorules.files import atomic_write, default_output_path
 from allorules.mesh.geometry import vertex_normals
 from allorules.output.export import save_mesh
@@ -335,7 +335,7 @@ def test_failure_mid_way_leaves_no_partial_file(tmp_path: Path, monkeypatch) -> 
         raise OSError("disk full")
 
     monkeypatch.setattr(files.os, "fsync", failing_fsync)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match="disk full"):   # one line for the user, not a traceback
         save_mesh(output, box.vertices, box.faces)
     assert not output.exists()
     assert list(tmp_path.iterdir()) == []

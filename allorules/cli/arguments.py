@@ -1,12 +1,13 @@
-"""Options shared by several commands: ``--plugin PATH``, the ``--up``/``--forward`` directions and
-``--working-vertices N``.
+"""Options shared by several commands: ``--plugin PATH``, the ``--up``/``--forward`` directions,
+``--working-vertices N`` and ``--png`` (with ``--plot``, its old spelling on ``spectrum``).
 """
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
-import numpy as np
+log = logging.getLogger("allorules")
 
 
 def add_plugin_argument(parser: argparse.ArgumentParser) -> None:
@@ -18,11 +19,24 @@ def add_plugin_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def plugin_files(registry, arguments: argparse.Namespace) -> list:
+    """The plugin files a command loaded by path (``--plugin``, a ruleset's ``plugins:``), and the
+    paths as given: inputs of the command, protected from its outputs."""
+    files = list(getattr(arguments, "plugins", None) or [])
+    if registry is not None:
+        from allorules.plugins.registry import ORIGIN_PATH
+
+        files += [location for origin, location in registry.origins.values() if origin == ORIGIN_PATH and location]
+    return files
+
+
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
-def parse_direction(text: str) -> np.ndarray:
+def parse_direction(text: str):
     """A direction from the command line: ``+y``, ``-z``, ``x`` or three numbers ``0,1,0``."""
+    import numpy as np
+
     cleaned = text.strip().lower()
     sign = -1.0 if cleaned.startswith("-") else 1.0
     name = cleaned.lstrip("+-")
@@ -56,3 +70,25 @@ def add_working_vertices_argument(parser: argparse.ArgumentParser) -> None:
                         f"{WORKING_VERTICES}, {MIN_WORKING_VERTICES} to {MAX_WORKING_VERTICES}); a mesh at or below it is "
                         "used as it is, a larger one is remeshed and the result carried back to every one of its "
                         "vertices (docs/working-mesh.md)")
+
+
+def add_png_argument(parser: argparse.ArgumentParser, what: str, *, old_spelling: str | None = None) -> None:
+    """``--png FILE.png``, the one spelling of every command's picture; ``old_spelling`` (e.g.
+    ``--plot``) still works, with a note that it is deprecated."""
+    parser.add_argument("--png", metavar="FILE.png", help=f"write a picture: {what}")
+    if old_spelling:
+        parser.add_argument(old_spelling, dest="png_old_spelling", metavar="FILE.png", help=argparse.SUPPRESS)
+
+
+def png_path(arguments: argparse.Namespace, old_spelling: str = "--plot") -> tuple[str | None, str]:
+    """The picture the command line asks for and the option it was given with: ``--png``, or its
+    old spelling (with a deprecation note)."""
+    old = getattr(arguments, "png_old_spelling", None)
+    if old and not arguments.png:
+        log.warning("note: %s is deprecated, write --png %s (the same picture)", old_spelling, old)
+        return old, old_spelling
+    if old and arguments.png:
+        from allorules.errors import AllorulesError
+
+        raise AllorulesError(f"{old_spelling} is the old spelling of --png; give --png only")
+    return arguments.png, "--png"

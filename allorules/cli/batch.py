@@ -8,14 +8,18 @@ same command again skips the finished jobs. Exit status 1 when a job failed.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
         "batch",
-        help="run many meshes × ratios × rulesets from a manifest, in parallel; resumes where it stopped",
+        help=command_help("batch"),
         description="Scale every mesh of a manifest by every mass ratio with every ruleset ('global' for "
-        "global scaling), one job per core, skipping jobs finished by an earlier run with the same inputs.",
+        "global scaling), one job per core, skipping jobs finished by an earlier run with the same inputs "
+        "(docs/batch.md).",
     )
     parser.add_argument("manifest", help="manifest YAML (see docs/batch.md)")
     parser.add_argument("-j", "--jobs", type=int, metavar="N",
@@ -25,6 +29,17 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
-    from allorules.runs.batch import run_batch_command
+    from allorules.files import Output, check_outputs
+    from allorules.runs.batch import load_manifest, run_batch_command
 
+    # The manifest and every file it names are inputs: no result or summary may replace one; the
+    # output folder must be writable before the first job starts.
+    manifest = load_manifest(arguments.manifest)
+    summaries = [Output.of(manifest.output / f"summary.{kind}", "the batch summary") for kind in ("json", "csv", "md")
+                 if manifest.output.is_dir()]   # a folder still to be made holds no input
+    check_outputs([Output.of(manifest.output, "the manifest's output folder", folder=True), *summaries],
+                  {"manifest": manifest.path, "input mesh": [mesh.path for mesh in manifest.meshes],
+                   "labels file": [mesh.segmentation for mesh in manifest.meshes if mesh.segmentation],
+                   "ruleset": [Path(name) for name in manifest.rulesets if name.endswith((".yaml", ".yml"))],
+                   "plugin": list(manifest.plugins)}, force=True)
     return run_batch_command(arguments)

@@ -14,6 +14,7 @@ log = logging.getLogger("allorules")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
     from allorules.runs.demo import (
         DEFAULT_FOLDER,
         DEFAULT_MODES,
@@ -25,10 +26,10 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
     parser = subcommands.add_parser(
         "demo",
-        help="scale the built-in quadruped globally and biology-aware; write meshes, gallery and reports",
+        help=command_help("demo"),
         description="Generate the built-in quadruped, label its regions, scale it globally and with the "
         "'quadruped' ruleset to mass ratios 0.5 and 2, and write the meshes (OBJ), a gallery picture, "
-        "JSON reports and an offline HTML report.",
+        "JSON reports and an offline HTML report (docs/demo.md).",
     )
     parser.add_argument("-o", "--output", metavar="DIR",
                         help=f"folder to write into (default: {DEFAULT_FOLDER}/, or {DEFAULT_FOLDER}-2/, -3/, … "
@@ -46,7 +47,14 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from allorules.files import Output, check_outputs
     from allorules.runs.demo import format_rule_table, run_demo
+
+    # the folder (or, for the default folder, the folder it is made in) can be written to
+    check_outputs([Output.of(Path(arguments.output) if arguments.output else Path.cwd(), "-o", folder=True)],
+                  force=True)
 
     demo = run_demo(arguments.output, preset=arguments.preset, vertices=arguments.vertices, modes=arguments.modes,
                     quick=arguments.quick, force=arguments.force)

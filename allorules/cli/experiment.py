@@ -1,17 +1,13 @@
-"""``allorules experiment {global,local}``: the paper's 1-D DCT experiments (Figures 8, 12, 14)."""
+"""``allorules experiment {global,local}``: the 1-D experiments with the cosine transform (DCT)
+as basis (docs/method.md, "The 1-D experiments")."""
 from __future__ import annotations
 
 import argparse
 import json
 import logging
 
+from allorules.cli.arguments import add_png_argument
 from allorules.errors import AllorulesError
-from allorules.spectral.experiments import (
-    global_experiment,
-    local_experiment,
-    plot_global,
-    plot_local,
-)
 
 log = logging.getLogger("allorules")
 
@@ -21,25 +17,37 @@ class ExperimentError(AllorulesError):
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
         "experiment",
-        help="1-D experiments with the DCT as basis (paper Figures 8, 12, 14)",
+        help=command_help("experiment"),
         description="global: the fitted spectral slope of a 1/f signal moves by exactly α under "
-        "Eq. 4. local: the local power law (Eq. 6) changes an indicator region without a jump at "
-        "its edges, arithmetic scaling jumps.",
+        "the global power law. local: the local power law changes an indicator region without a jump at "
+        "its edges, arithmetic scaling jumps. See docs/method.md, 'The 1-D experiments'.",
     )
     parser.add_argument("which", choices=["global", "local"], help="which experiment")
     parser.add_argument("--alpha", type=float, default=None,
-                        help="allometric exponent (default 1.8 for global as in Figure 8, 0.5 for local)")
+                        help="allometric exponent (default 1.8 for global, 0.5 for local)")
     parser.add_argument("--length", type=int, default=1024, help="number of samples (default 1024)")
     parser.add_argument("--beta", type=float, default=1.0, help="amplitude spectrum 1/f^β of the signal (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--png", metavar="FILE", help="write a plot of the experiment")
+    add_png_argument(parser, "the signal before and after, and its spectrum")
+    parser.add_argument("--force", action="store_true", help="replace an existing picture")
     parser.add_argument("--json", action="store_true", help="print the numbers as one JSON object")
     parser.set_defaults(run=run)
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.files import PNG, Output, check_outputs
+    from allorules.spectral.experiments import (
+        global_experiment,
+        local_experiment,
+        plot_global,
+        plot_local,
+    )
+
+    check_outputs([Output.of(arguments.png, "--png", PNG)], force=arguments.force)
     if arguments.length < 16:
         raise ExperimentError(f"--length must be at least 16, got {arguments.length}")
     if arguments.which == "global":
@@ -60,10 +68,7 @@ def run(arguments: argparse.Namespace) -> int:
                 f"({result.jump_ratio:.1f}x)")
         plot = plot_local
     if arguments.png:
-        try:
-            plot(result, arguments.png)
-        except OSError as error:
-            raise ExperimentError(f"cannot write {arguments.png}: {error.strerror or error}") from error
+        plot(result, arguments.png)
         log.info("wrote %s", arguments.png)
     print(json.dumps(numbers) if arguments.json else text)
     return 0

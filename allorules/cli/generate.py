@@ -4,31 +4,24 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from pathlib import Path
-
-from allorules.errors import AllorulesError
-from allorules.files import atomic_write
-from allorules.mesh.quadruped import (
-    PRESETS,
-    QuadrupedParameterError,
-    generate_quadruped,
-)
-from allorules.output.export import save_mesh
 
 log = logging.getLogger("allorules")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
         "generate",
-        help="write a generated quadruped (closed mesh with known regions and measurements)",
+        help=command_help("generate"),
         description="Generate a smooth, closed quadruped (+Y up, +X forward, feet at y = 0) "
         "whose region labels and true measurements are known. See docs/quadruped.md.",
     )
     parser.add_argument("-o", "--output", required=True, metavar="OUT.obj",
                         help="mesh to write (.obj .ply .stl .off .glb)")
-    parser.add_argument("--preset", default="horse", choices=sorted(PRESETS),
-                        help="animal to start from (default: horse)")
+    parser.add_argument("--preset", default="horse", metavar="NAME",
+                        help="animal to start from (default: horse; the others are listed in docs/quadruped.md, "
+                        "and a wrong name lists them)")
     parser.add_argument("--vertices", type=int, default=8000, metavar="N",
                         help="about how many vertices (±20%%, default 8000)")
     parser.add_argument("--seed", type=int, default=0,
@@ -37,11 +30,13 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="override one parameter, e.g. --set neck_length=0.9 (repeatable)")
     parser.add_argument("--labels", metavar="LABELS.json", help="also write per-vertex region labels")
     parser.add_argument("--truth", metavar="TRUTH.json", help="also write the true measurements")
-    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    parser.add_argument("--force", action="store_true", help="replace existing output files")
     parser.set_defaults(run=run)
 
 
 def _overrides(items: list[str]) -> dict[str, float]:
+    from allorules.mesh.quadruped import QuadrupedParameterError
+
     values = {}
     for item in items:
         name, separator, text = item.partition("=")
@@ -55,16 +50,12 @@ def _overrides(items: list[str]) -> dict[str, float]:
 
 
 def run(arguments: argparse.Namespace) -> int:
-    outputs = [Path(p) for p in (arguments.output, arguments.labels, arguments.truth) if p]
-    if len({p.resolve() for p in outputs}) != len(outputs):
-        raise AllorulesError("the mesh, labels and truth outputs must be different files")
-    if not arguments.force:
-        existing = [str(p) for p in outputs if p.exists()]
-        if existing:
-            raise AllorulesError(f"{', '.join(existing)} already exist(s); choose other names or pass --force")
-    for path in outputs[1:]:
-        if path.suffix.lower() != ".json":
-            raise AllorulesError(f"{path}: labels and truth are written as JSON; name the file *.json")
+    from allorules.files import JSON, Output, atomic_write, check_outputs
+    from allorules.mesh.quadruped import generate_quadruped
+    from allorules.output.export import SUPPORTED_FORMATS, save_mesh
+
+    check_outputs([Output.of(arguments.output, "-o", SUPPORTED_FORMATS), Output.of(arguments.labels, "--labels", JSON),
+                   Output.of(arguments.truth, "--truth", JSON)], force=arguments.force)
 
     animal = generate_quadruped(arguments.preset, arguments.vertices, seed=arguments.seed,
                                 **_overrides(arguments.overrides))

@@ -13,10 +13,9 @@ import logging
 import math
 from pathlib import Path
 
-import numpy as np
-
 from allorules.cli.arguments import (
     add_direction_arguments,
+    add_png_argument,
     add_working_vertices_argument,
 )
 from allorules.errors import AllorulesError, MeasurementError, SegmentationError
@@ -27,13 +26,14 @@ DEFAULT_RULESET = "quadruped"
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
     from allorules.cli.arguments import add_plugin_argument
 
     parser = subcommands.add_parser(
         "measure",
-        help="measure body mass, peak limb stress and the region quantities of a ruleset",
+        help=command_help("measure"),
         description="Prepare the mesh, label its regions (from --segmentation, or automatically) and print "
-        "body mass, peak stress and each rule's quantity of the ruleset.",
+        "body mass, peak stress and each rule's quantity of the ruleset (docs/measurements.md).",
     )
     parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
     parser.add_argument("--segmentation", metavar="FILE",
@@ -42,8 +42,8 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--ruleset", default=DEFAULT_RULESET, metavar="NAME",
                         help=f"ruleset whose quantities to measure (default {DEFAULT_RULESET}); a name or a .yaml path")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
-    parser.add_argument("--png", metavar="FILE.png",
-                        help="also write a picture: the regions in colour and the load-bearing section marked")
+    add_png_argument(parser, "the regions in colour and the load-bearing section marked")
+    parser.add_argument("--force", action="store_true", help="replace an existing picture (never an input)")
     add_direction_arguments(parser)
     add_plugin_argument(parser)
     add_working_vertices_argument(parser)
@@ -65,6 +65,8 @@ def segmented_body(arguments: argparse.Namespace, ruleset, registry):
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.cli.arguments import plugin_files
+    from allorules.files import PNG, Output, check_outputs
     from allorules.measure.mass import body_mass
     from allorules.measure.stress import peak_stress
     from allorules.plugins.registry import registry_for
@@ -72,8 +74,9 @@ def run(arguments: argparse.Namespace) -> int:
 
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
-    if arguments.png:
-        _check_picture_path(arguments.png, arguments.mesh)
+    check_outputs([Output.of(arguments.png, "--png", PNG)],
+                  {"input mesh": arguments.mesh, "labels file": arguments.segmentation, "ruleset": ruleset.path,
+                   "plugin": plugin_files(registry, arguments)}, force=arguments.force)
     body, source = segmented_body(arguments, ruleset, registry)
     missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]
     if missing:
@@ -122,18 +125,10 @@ def _finite(value: float, what: str) -> float:
     return value
 
 
-def _check_picture_path(path: str, mesh: str) -> None:
-    picture = Path(path)
-    if picture.suffix.lower() != ".png":
-        raise MeasurementError(f"{picture}: --png writes a PNG picture; name it with .png")
-    if picture.exists() and picture.resolve() == Path(mesh).resolve():
-        raise MeasurementError(f"{picture}: refusing to overwrite the input mesh")
-    if not picture.parent.exists():
-        raise MeasurementError(f"{picture.parent}: folder does not exist")
-
-
 def _write_picture(body, path: str, result: dict) -> None:
     """Side and three-quarter views: regions in colour, the load-bearing section marked."""
+    import numpy as np
+
     from allorules.measure.stress import load_bearing_section
     from allorules.output.render import region_colors, region_legend, render_views
 

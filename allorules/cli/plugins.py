@@ -4,12 +4,13 @@ from __future__ import annotations
 import argparse
 
 from allorules.cli.arguments import add_plugin_argument
-from allorules.plugins.registry import registry_for
 
 
 def register(subcommands) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
-        "plugins", help="list plugins: what each provides and where it came from",
+        "plugins", help=command_help("plugins"),
         description="List the built-in plugin, installed plugins (entry-point group 'allorules') and "
                     "plugins given with --plugin. Plugins that failed are listed with the reason; the exit "
                     "status is 1 when any failed.")
@@ -20,6 +21,8 @@ def register(subcommands) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.plugins.registry import registry_for
+
     registry = registry_for(arguments)
     infos = registry.describe()
     measures, segmenters, constraints = registry.measures(), registry.segmenters(), registry.constraints()

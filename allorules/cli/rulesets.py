@@ -7,16 +7,13 @@ import sys
 import textwrap
 
 from allorules.cli.arguments import add_plugin_argument
-from allorules.plugins.registry import registry_for
-from allorules.rules.find import list_rulesets
-from allorules.rules.model import dump_ruleset, ruleset_to_dict
-from allorules.rules.resolve import check_ruleset, load_ruleset
-from allorules.rules.schema import ruleset_schema
 
 
 def register(subcommands) -> None:
+    from allorules.cli import command_help
+
     listing = subcommands.add_parser(
-        "rulesets", help="list the rulesets that can be named, with their descriptions",
+        "rulesets", help=command_help("rulesets"),
         description="List the built-in rulesets and those plugins provide; name any of them where a "
                     "ruleset is asked for, or give the path of your own .yaml file.")
     listing.add_argument("--paths", action="store_true", help="also show the file of each ruleset")
@@ -24,7 +21,7 @@ def register(subcommands) -> None:
     listing.set_defaults(run=run_list)
 
     ruleset = subcommands.add_parser(
-        "ruleset", help="show, check or describe rulesets (show NAME|FILE, check FILE, schema)",
+        "ruleset", help=command_help("ruleset"),
         description="Work with one ruleset. See docs/rulesets.md for the format.")
     actions = ruleset.add_subparsers(dest="action", metavar="ACTION")
     actions.required = True
@@ -45,6 +42,9 @@ def register(subcommands) -> None:
 
 
 def run_list(arguments: argparse.Namespace) -> int:
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.find import list_rulesets
+
     registry = registry_for(arguments)
     summaries = list_rulesets(registry)
     width = max((len(summary.name) for summary in summaries), default=0)
@@ -61,6 +61,10 @@ def run_list(arguments: argparse.Namespace) -> int:
 
 
 def run_show(arguments: argparse.Namespace) -> int:
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.model import dump_ruleset, ruleset_to_dict
+    from allorules.rules.resolve import load_ruleset
+
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     if arguments.format == "json":
@@ -71,19 +75,30 @@ def run_show(arguments: argparse.Namespace) -> int:
 
 
 def run_check(arguments: argparse.Namespace) -> int:
+    from allorules.errors import RulesetError, RulesetProblems
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+
     registry = registry_for(arguments)
-    problems = check_ruleset(arguments.ruleset, registry)
+    try:   # read once: every problem, or the ruleset
+        ruleset = load_ruleset(arguments.ruleset, registry)
+        problems: list = []
+    except RulesetProblems as error:
+        problems = error.problems
+    except RulesetError as error:
+        problems = [error]
     if problems:
         for problem in problems:
             print(f"error: {problem}", file=sys.stderr)
         print(f"{arguments.ruleset}: {len(problems)} problem{'s' if len(problems) != 1 else ''}", file=sys.stderr)
         return 1
-    ruleset = load_ruleset(arguments.ruleset, registry)
     print(f"{arguments.ruleset}: valid (ruleset {ruleset.name!r}: {len(ruleset.regions)} regions, "
           f"{len(ruleset.rules)} rules, {len(ruleset.constraints)} constraints)")
     return 0
 
 
 def run_schema(arguments: argparse.Namespace) -> int:
+    from allorules.rules.schema import ruleset_schema
+
     print(json.dumps(ruleset_schema(), indent=2, ensure_ascii=False))
     return 0

@@ -25,22 +25,27 @@ from pathlib import Path
 from allorules.cli.arguments import (
     add_direction_arguments,
     add_plugin_argument,
+    add_png_argument,
     add_working_vertices_argument,
+    plugin_files,
 )
-from allorules.errors import AllorulesError, MeshError, ScalingError
+from allorules.errors import AllorulesError, ScalingError
 
 log = logging.getLogger("allorules")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
         "scale",
-        help="scale a mesh allometrically (--ruleset for biology-aware scaling, --global, or --region)",
+        help=command_help("scale"),
         description="Biology-aware scaling with --ruleset NAME --mass-ratio R: the ruleset's allometric rules "
         "(leg length, chest girth, head and abdominal mass against body mass) and its limit on limb stress are "
-        "met. --global: one exponent α for the whole body (--mass-ratio R keeps the peak limb stress; --alpha A "
-        "[--scale S] applies the power law once: α > 0 amplifies fine features, α < 0 damps them). --region "
-        "NAME --alpha A: one region only. See docs/biology-scaling.md and docs/method.md.",
+        "met (docs/biology-scaling.md, docs/rulesets.md). --global: one exponent α for the whole body (--mass-ratio "
+        "R keeps the peak limb stress; --alpha A [--scale S] applies the power law once: α > 0 amplifies fine "
+        "features, α < 0 damps them; docs/method.md). --region NAME --alpha A: one region only. Outputs are "
+        "described in docs/outputs.md.",
     )
     parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
     kind = parser.add_argument_group("what to do (one of)")
@@ -66,10 +71,10 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--placement", choices=("ground", "centroid"), default="ground",
                         help="where the output stands: ground (default: its feet on the input's ground plane at the "
                         "same place) or centroid (its centroid where the input's was)")
-    parser.add_argument("-o", "--output", metavar="OUT", help="output mesh (format from the extension)")
+    parser.add_argument("-o", "--output", metavar="OUT.obj",
+                        help="output mesh; the format follows the extension (.obj .ply .stl .glb .off)")
     parser.add_argument("--report", metavar="REPORT.json", help="write the run's report as JSON (also when it fails)")
-    parser.add_argument("--png", metavar="FILE.png", help="picture of the input and the output side by side, at true "
-                        "scale (written also when the run misses its targets)")
+    add_png_argument(parser, "the input and the output side by side, at true scale (also when the run misses its targets)")
     parser.add_argument("--modes", type=int, metavar="M", help="harmonic basis size (default 1000, at most vertices − 1)")
     add_working_vertices_argument(parser)
     parser.add_argument("--section", metavar="REGION:FRACTION[:PART]",
@@ -79,7 +84,8 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="labels file (.json or Princeton .seg) instead of the ruleset's segmenter")
     parser.add_argument("--keep-unconverged", action="store_true",
                         help="write the mesh of a run that missed its targets, as OUT.unconverged.EXT")
-    parser.add_argument("--force", action="store_true", help="overwrite existing output files (never the input)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never an input of the command: mesh, labels, ruleset, plugin)")
     parser.add_argument("--no-cache", action="store_true", help="do not read or write the basis cache")
     add_direction_arguments(parser)
     add_plugin_argument(parser)
@@ -159,25 +165,33 @@ def _section_choice(text: str | None):
     return SectionChoice(parts[0], fraction, part)
 
 
-def output_path(arguments: argparse.Namespace) -> Path:
-    """The output mesh, checked (with the report) before any work."""
-    mesh = Path(arguments.mesh)
+def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> Path:
+    """The output mesh, checked with every other output (picture, report, the unconverged name)
+    against every input of the command (allorules.files.check_outputs), before any work."""
+    from allorules.files import JSON, PNG, Output, check_outputs
+    from allorules.output.export import SUPPORTED_FORMATS
+
     if not arguments.output:
         raise AllorulesError("give the output mesh with -o OUT (e.g. -o heavier.obj)")
     output = Path(arguments.output)
-    if mesh.exists() and output.exists() and output.resolve() == mesh.resolve():
-        raise MeshError(f"{output}: refusing to overwrite the input mesh; choose another output name")
-    if output.exists() and not arguments.force:
-        raise MeshError(f"{output}: already exists; use --force to overwrite it")
-    if not output.parent.exists():
-        raise MeshError(f"{output.parent}: folder does not exist")
-    if arguments.report:
-        report = Path(arguments.report)
-        if report.exists() and not arguments.force:
-            raise MeshError(f"{report}: already exists; use --force to overwrite it")
-        if report.resolve() in (output.resolve(), mesh.resolve()):
-            raise MeshError(f"{report}: the report must not be the input or the output mesh")
+    outputs = [Output.of(output, "-o", SUPPORTED_FORMATS), Output.of(arguments.png, "--png", PNG),
+               Output.of(arguments.report, "--report", JSON)]
+    if arguments.keep_unconverged:
+        outputs.append(Output.of(output.with_name(f"{output.stem}.unconverged{output.suffix}"),
+                                 "--keep-unconverged", SUPPORTED_FORMATS))
+    check_outputs(outputs, command_inputs(arguments, scaling, registry), force=arguments.force)
     return output
+
+
+def command_inputs(arguments: argparse.Namespace, scaling=None, registry=None) -> dict:
+    """Every file the command reads, by what it is (protected from its outputs)."""
+    ruleset = getattr(scaling, "ruleset", None)
+    inputs = {"input mesh": arguments.mesh, "labels file": arguments.segmentation}
+    if ruleset is not None:
+        inputs["ruleset"] = ruleset.path
+        inputs["segmenter's file"] = [value for value in ruleset.segmenter.options.values() if isinstance(value, Path)]
+    inputs["plugin"] = plugin_files(registry, arguments)
+    return inputs
 
 
 def write_report(path: str | None, report: dict) -> None:
@@ -200,7 +214,10 @@ def run(arguments: argparse.Namespace) -> int:
 
     registry = registry_for(arguments)
     scaling = _scaling(arguments, registry)
-    output = output_path(arguments)
+    output = output_path(arguments, scaling, registry)
+    if arguments.plugins and not isinstance(scaling, pipeline.RulesetScaling):
+        log.warning("--plugin: not used by %s scaling (plugins provide a ruleset's measures, constraints and "
+                    "segmenter); use --ruleset to use them", "region" if arguments.region else "global")
     try:
         result_run = pipeline.run(arguments.mesh, scaling, registry=registry, labels=arguments.segmentation or None,
                                   up=arguments.up, forward=arguments.forward, modes=arguments.modes,
@@ -224,9 +241,7 @@ def run(arguments: argparse.Namespace) -> int:
 
     written = output if result_run.converged else None
     if not result_run.converged and arguments.keep_unconverged:
-        written = output.with_name(f"{output.stem}.unconverged{output.suffix}")
-        if written.exists() and not arguments.force:
-            raise MeshError(f"{written}: already exists; use --force to overwrite it")
+        written = output.with_name(f"{output.stem}.unconverged{output.suffix}")   # checked before the run
     if written is not None:
         pipeline.save_output(result_run, written, overwrite=arguments.force)
     if arguments.png:   # also for a run that missed: there must be something to look at
@@ -238,7 +253,7 @@ def run(arguments: argparse.Namespace) -> int:
     print(summary(scaling, result_run.result, report, written or output))
     print(result_run.quality().summary())
     if not result_run.converged:
-        for message in result_run.result.messages:
+        for message in result_run.result.messages[1:]:   # the first one is the error line's
             log.warning("%s", message)
         where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
             f"no mesh written (use --keep-unconverged to write it as {output.stem}.unconverged{output.suffix})"

@@ -18,24 +18,28 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from allorules.body import Body
 from allorules.cli.arguments import (
     add_direction_arguments,
     add_plugin_argument,
+    add_png_argument,
     add_working_vertices_argument,
 )
 from allorules.errors import AllorulesError, SegmentationError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from allorules.body import Body
 
 log = logging.getLogger("allorules")
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
+    from allorules.cli import command_help
+
     parser = subcommands.add_parser(
         "segment",
-        help="label head, neck, chest, abdomen, forelimbs, hindlimbs (automatic, a plugin's segmenter, or patches + merge file)",
+        help=command_help("segment"),
         description="Label the regions with a segmenter (the automatic quadruped labeller by default), or (with "
         "--patches) over-segment into numbered patches that a merge file (YAML: region: [patch ids]) turns into "
         "regions. See docs/segmentation.md.",
@@ -45,7 +49,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="per-vertex labels file to write (default: <mesh name>.labels.json, "
                         "or <mesh name>.patches.json for patches)")
     parser.add_argument("--seg", metavar="FILE.seg", help="also write per-face labels (Princeton benchmark .seg)")
-    parser.add_argument("--png", metavar="FILE.png", help="write a picture: regions in colour, or numbered patches")
+    add_png_argument(parser, "regions in colour, or numbered patches")
     parser.add_argument("--segmenter", metavar="NAME", help="the segmenter to label with (default: the ruleset's, "
                         "else auto-quadruped); 'allorules plugins' lists them and their options")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -59,18 +63,9 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     add_direction_arguments(parser)
     add_plugin_argument(parser)
     add_working_vertices_argument(parser)
-    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never an input: mesh, merge file, ruleset, plugin)")
     parser.set_defaults(run=run)
-
-
-def _check_output(path: Path, mesh: Path, force: bool) -> Path:
-    if path.resolve() == mesh.resolve():
-        raise SegmentationError(f"{path}: refusing to overwrite the input mesh; choose another output name")
-    if path.exists() and not force:
-        raise SegmentationError(f"{path}: already exists; use --force to overwrite it")
-    if not path.parent.exists():
-        raise SegmentationError(f"{path.parent}: folder does not exist")
-    return path
 
 
 def segmenter_use(name: str, option_texts: list[str], registry):
@@ -98,6 +93,9 @@ def segmenter_use(name: str, option_texts: list[str], registry):
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.body import Body
+    from allorules.cli.arguments import plugin_files
+    from allorules.files import JSON, PNG, Output, check_outputs
     from allorules.mesh.working import check_working_vertices
     from allorules.output.render import render_regions
     from allorules.plugins.registry import registry_for
@@ -115,15 +113,13 @@ def run(arguments: argparse.Namespace) -> int:
                                 "--segmenter, --option and --ruleset")
     default_suffix = ".patches.json" if arguments.patches is not None and not arguments.merge else ".labels.json"
     output = Path(arguments.output) if arguments.output else Path(mesh.name).with_suffix("").with_suffix(default_suffix)
-    _check_output(output, mesh, arguments.force)
-    for extra in (arguments.seg, arguments.png):
-        if extra:
-            _check_output(Path(extra), mesh, arguments.force)
     registry = registry_for(arguments)
+    ruleset_path = None
     if arguments.ruleset:
         from allorules.rules.resolve import load_ruleset
 
-        use = load_ruleset(arguments.ruleset, registry).segmenter
+        ruleset = load_ruleset(arguments.ruleset, registry)
+        ruleset_path, use = ruleset.path, ruleset.segmenter
         if arguments.segmenter or arguments.option:
             use = segmenter_use(arguments.segmenter or use.name, arguments.option, registry)
     elif arguments.merge:
@@ -131,6 +127,11 @@ def run(arguments: argparse.Namespace) -> int:
                                           "seed": arguments.seed})
     else:
         use = segmenter_use(arguments.segmenter or "auto-quadruped", arguments.option, registry)
+    check_outputs([Output.of(output, "-o" if arguments.output else "the labels file", JSON),
+                   Output.of(arguments.seg, "--seg", (".seg",)), Output.of(arguments.png, "--png", PNG)],
+                  {"input mesh": mesh, "merge file": arguments.merge, "ruleset": ruleset_path,
+                   "segmenter's file": [value for value in use.options.values() if isinstance(value, Path)],
+                   "plugin": plugin_files(registry, arguments)}, force=arguments.force)
     check_working_vertices(arguments.working_vertices)
     prepared = prepare(arguments.mesh)
     work = working(prepared, arguments.working_vertices)    # as a run labels: on the working mesh
@@ -177,6 +178,8 @@ def _frame_or_none(body: Body, arguments: argparse.Namespace):
 
 
 def _summary(body: Body) -> str:
+    import numpy as np
+
     from allorules.mesh.geometry import vertex_areas
 
     mass = vertex_areas(body.vertices, body.faces)

@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 import yaml
 
 from allorules.errors import RulesetError, SourceLocation
-from allorules.rules.located_yaml import _Loader
+from allorules.files import text_size_problem
+from allorules.rules.located_yaml import _FastLoader
 from allorules.rules.model import RulesetSummary
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -74,7 +75,10 @@ def list_rulesets(plugin_manager: "PluginRegistry | None" = None) -> list[Rulese
 
 def _peek_description(path: Path) -> str:
     try:
-        data = yaml.load(path.read_text(encoding="utf-8-sig"), Loader=_Loader)
+        too_large = text_size_problem(path.stat().st_size, "ruleset")
+        if too_large:
+            return f"(cannot be read: {too_large.split(';')[0]})"
+        data = yaml.load(path.read_text(encoding="utf-8-sig"), Loader=_FastLoader)
     except Exception as error:  # a broken file still gets listed, flagged
         return f"(cannot be read: {str(error).splitlines()[0] if str(error) else type(error).__name__})"
     if isinstance(data, dict) and isinstance(data.get("description"), str):

@@ -15,7 +15,7 @@ it globally (paper §3.1) and biology-aware with the ``quadruped`` ruleset (§3.
 
 The rule table compares, per rule of the ruleset, the target exponent e with the achieved
 exponent e' = log(q_final / q_initial) / log R measured on the output (METHOD §6), for both the
-global and the biology-aware runs: global scaling does not know the rules, so its residuals show
+global and the biology-aware runs: global scaling does not know the rules, so its exponent errors show
 what the biology-aware solver buys.
 
 A previous demo is never overwritten silently: the default folder ``allorules-demo`` becomes
@@ -29,11 +29,12 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Sequence
 
 from allorules.errors import AllorulesError, ScalingError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
 
 log = logging.getLogger("allorules")
 
@@ -146,6 +147,8 @@ def choose_folder(output: str | Path | None, *, force: bool = False) -> Path:
 def label_agreement(generated, labelled) -> float:
     """Share of the surface (by vertex area) where the automatic labels match the generator's
     regions (its tail counted as abdomen, as the labeller does)."""
+    import numpy as np
+
     from allorules.mesh.geometry import vertex_areas
     from allorules.segment.regions import NEIGHBOUR_REGION
 
@@ -157,8 +160,8 @@ def label_agreement(generated, labelled) -> float:
 
 
 def rule_outcomes(initial, final, ruleset, registry, ratio: float) -> list[dict[str, Any]]:
-    """Per rule: target exponent e, achieved e' = log(q_final / q_initial) / log R, residual e' − e
-    (METHOD §6), plus body mass (target exponent 1) and peak stress (target 0)."""
+    """Per rule: target exponent e, achieved e' = log(q_final / q_initial) / log R, exponent error
+    e' − e (METHOD §6), plus body mass (target exponent 1) and peak stress (target 0)."""
     from allorules.measure.mass import body_mass
 
     rows = []
@@ -167,7 +170,7 @@ def rule_outcomes(initial, final, ruleset, registry, ratio: float) -> list[dict[
     def row(rule_id: str, region, measure: str, exponent: float, before: float, after: float) -> dict[str, Any]:
         achieved = math.log(after / before) / log_ratio if before > 0 and after > 0 else float("nan")
         return {"rule": rule_id, "region": region, "measure": measure, "target exponent": float(exponent),
-                "achieved exponent": achieved, "residual": achieved - exponent,
+                "achieved exponent": achieved, "exponent error": achieved - exponent,
                 "initial": float(before), "final": float(after)}
 
     rows.append(row("body mass", None, "mass", 1.0, body_mass(initial), body_mass(final)))
@@ -179,14 +182,17 @@ def rule_outcomes(initial, final, ruleset, registry, ratio: float) -> list[dict[
 
 
 def format_rule_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The terminal table: run, rule, target exponent, achieved exponent, residual."""
-    header = f"{'run':<14} {'rule':<20} {'target':>8} {'achieved':>9} {'residual':>9}"
+    """The terminal table: run, rule, target exponent, achieved exponent, exponent error (the same
+    columns as ``allorules scale``)."""
+    header = (f"{'run':<14} {'rule':<20} {'target exponent':>15} {'achieved exponent':>17} "
+              f"{'exponent error':>14}")
     lines = [header, "-" * len(header)]
     for item in rows:
         achieved = item["achieved exponent"]
         text = "n/a" if not math.isfinite(achieved) else f"{achieved:.3f}"
-        residual = "n/a" if not math.isfinite(item["residual"]) else f"{item['residual']:+.3f}"
-        lines.append(f"{item.get('run', ''):<14} {item['rule']:<20} {item['target exponent']:>8.3f} {text:>9} {residual:>9}")
+        error = "n/a" if not math.isfinite(item["exponent error"]) else f"{item['exponent error']:+.3f}"
+        lines.append(f"{item.get('run', ''):<14} {item['rule']:<20} {item['target exponent']:>15.3f} {text:>17} "
+                     f"{error:>14}")
     return "\n".join(lines)
 
 
@@ -299,6 +305,8 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
         run.error = str(error)
     run.seconds = time.perf_counter() - start
     if result is not None:
+        import numpy as np
+
         run.vertices = np.asarray(result.body.vertices)
         run.result = result.as_dict()
         run.rules = rule_outcomes(body, result.body, ruleset, registry, ratio)
@@ -385,9 +393,9 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
                  [list(run.summary().values()) for run in demo.runs],
                  note="Stress ratio: peak stress after / before, at the same load-bearing limb section (target 1).")
     rules = Table("Rules: target against achieved exponent", ["run", "rule", "region", "target exponent",
-                                                               "achieved exponent", "residual"],
+                                                               "achieved exponent", "exponent error"],
                   [[row["run"], row["rule"], row["region"] or "body", row["target exponent"], row["achieved exponent"],
-                    row["residual"]] for row in demo.rule_rows()],
+                    row["exponent error"]] for row in demo.rule_rows()],
                   note="Achieved exponent e' = log(q_final / q_initial) / log R on the output. Global scaling does not "
                        "know the rules; the biology-aware runs solve for them.")
     stance = Table("Legs: stance and shape over the run", ["run", "leg", "lean (°)", "foot lift (% of the leg)",

@@ -393,7 +393,7 @@ def run(
 
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:
     """Write the run's output mesh in the input's own layout (UVs, materials, detached parts kept);
-    the input is never overwritten. Says on the log what the export could not carry over."""
+    the input is never overwritten. ``save_mesh`` says on the log what the export could not carry over."""
     prepared = run.prepared
     if prepared.source is not None:
         saved = save_mesh(path, run.output_vertices(), np.asarray(prepared.source.faces), source=prepared.source,
@@ -401,9 +401,7 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
     else:
         saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
-    for note in saved.notes:
-        log.info("export: %s", note)
-    return saved
+    return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
 
 def save_picture(run: Run, path: str | Path, *, output_name: str = "output") -> Path:

@@ -1,14 +1,16 @@
-"""Progress on the terminal for long commands: numbered step lines and optional bars.
+"""Progress for long commands: numbered step lines, bars on a terminal, lines in a log.
 
 :class:`Steps` prints ``[2/7] scale globally ×0.5 …`` before a step and ``… done (3.1 s)`` after
 it, through the ``allorules`` logger at INFO level, so ``--quiet`` (WARNING) silences it and
 ``--verbose`` (DEBUG) adds the inner details the modules log themselves. Bars (tqdm) are drawn
-only when stderr is a terminal and INFO is enabled, so pipes, CI logs and tests stay clean.
+only when stderr is a terminal and INFO is enabled; when stderr is a pipe or a log file (CI, a
+batch script, ``2> run.log``) the same progress comes as plain lines instead, one when a step
+starts and ends and at most one every :data:`LINE_INTERVAL` seconds in between, so a
+ten-minute run is never silent and a log is never flooded.
 
-Every bar in the package is made here by :func:`count_bar` (the eigensolver's
-``terminal_progress`` is a bar of modes found). A multi-step scaling run reports to a
-:class:`RunProgress`: its steps, each step's basis (modes found) and each step's solve (trial
-meshes measured); :func:`run_progress` gives the terminal one, with a bar for each.
+Every bar or line counter in the package is made here by :func:`count_bar`. A multi-step scaling
+run reports to a :class:`RunProgress`: its steps, each step's basis (modes found) and each step's
+solve (trial meshes measured); :func:`run_progress` gives bars on a terminal and lines elsewhere.
 """
 from __future__ import annotations
 
@@ -22,11 +24,22 @@ log = logging.getLogger("allorules")
 
 ProgressCallback = Callable[[int, int], None]
 
+# Seconds between two progress lines of the same step when stderr is not a terminal.
+LINE_INTERVAL = 30.0
+
+
+def _on_terminal() -> bool:
+    return bool(getattr(sys.stderr, "isatty", lambda: False)())
+
 
 def showing_progress() -> bool:
     """Bars are drawn when the user sees stderr on a terminal and did not ask for ``--quiet``."""
-    stream = sys.stderr
-    return bool(getattr(stream, "isatty", lambda: False)()) and log.isEnabledFor(logging.INFO)
+    return _on_terminal() and log.isEnabledFor(logging.INFO)
+
+
+def writing_progress_lines() -> bool:
+    """Progress lines are written when stderr is not a terminal and ``--quiet`` was not asked for."""
+    return not _on_terminal() and log.isEnabledFor(logging.INFO)
 
 
 def basis_bar(description: str = "harmonic basis") -> ProgressCallback | None:
@@ -35,7 +48,10 @@ def basis_bar(description: str = "harmonic basis") -> ProgressCallback | None:
 
 
 def count_bar(description: str, unit: str = "steps") -> ProgressCallback | None:
-    """A ``progress(done, total)`` callback drawing a tqdm bar counting ``unit``, or ``None``."""
+    """A ``progress(done, total)`` callback: a tqdm bar counting ``unit`` on a terminal, progress
+    lines elsewhere (:data:`LINE_INTERVAL`), ``None`` with ``--quiet``."""
+    if writing_progress_lines():
+        return _line_counter(description, unit)
     if not showing_progress():
         return None
     from tqdm import tqdm
@@ -50,6 +66,20 @@ def count_bar(description: str, unit: str = "steps") -> ProgressCallback | None:
         bar.update(max(0, min(done, total) - bar.n))
         if done >= total:
             bar.close()
+
+    return progress
+
+
+def _line_counter(description: str, unit: str) -> ProgressCallback:
+    """``progress(done, total)`` that logs ``description: done/total unit`` at most every
+    :data:`LINE_INTERVAL` seconds, and when the count is complete."""
+    last = [time.monotonic()]
+
+    def progress(done: int, total: int) -> None:
+        now = time.monotonic()
+        if done >= total or now - last[0] >= LINE_INTERVAL:
+            last[0] = now
+            log.info("%s: %d/%d %s", description, min(done, total), total, unit)
 
     return progress
 
@@ -124,10 +154,49 @@ class TerminalRunProgress(RunProgress):
                 self._steps = None
 
 
+class LineRunProgress(RunProgress):
+    """Progress lines on the log for a run nobody watches on a terminal: when each step starts and
+    ends, and in between at most one line every :data:`LINE_INTERVAL` seconds (the basis's modes
+    found, the solver's trials and best misfit)."""
+
+    def __init__(self, description: str = "scaling steps"):
+        self.description = description
+        self._step, self._steps = 0, 0
+        self._started = self._last = time.monotonic()
+
+    def _due(self) -> bool:
+        now = time.monotonic()
+        if now - self._last >= LINE_INTERVAL:
+            self._last = now
+            return True
+        return False
+
+    def step_started(self, step: int, steps: int) -> None:
+        self._step, self._steps = step, steps
+        self._started = self._last = time.monotonic()
+        if step == 1:   # then one line per step, when it is done
+            log.info("%s: step 1/%d started", self.description, steps)
+
+    def basis(self, done: int, total: int) -> None:
+        if self._due():
+            log.info("%s: step %d/%d: harmonic basis, %d/%d modes", self.description, self._step, self._steps,
+                     min(done, total), total)
+
+    def trial(self, count: int, misfit: float) -> None:
+        if self._due():
+            log.info("%s: step %d/%d: solving, %d trial meshes, misfit %.1e", self.description, self._step,
+                     self._steps, count, misfit)
+
+    def step_finished(self, step: int, steps: int) -> None:
+        log.info("%s: step %d/%d done (%.0f s)", self.description, step, steps, time.monotonic() - self._started)
+
+
 def run_progress(description: str = "scaling steps") -> RunProgress:
     """Bars for a scaling run when the user watches a terminal (see :func:`showing_progress`),
-    otherwise a :class:`RunProgress` that shows nothing."""
-    return TerminalRunProgress(description) if showing_progress() else RunProgress()
+    lines when stderr is a pipe or a file, nothing with ``--quiet``."""
+    if showing_progress():
+        return TerminalRunProgress(description)
+    return LineRunProgress(description) if writing_progress_lines() else RunProgress()
 
 
 class Steps:

@@ -32,7 +32,7 @@ import yaml
 
 from allorules.body import UNLABELLED, Body, Labelling
 from allorules.errors import RulesetError, SegmentationError, SourceLocation
-from allorules.files import atomic_write
+from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
 from allorules.segment.regions import QUADRUPED_REGIONS
 
@@ -70,6 +70,8 @@ def read_labels(path: str | Path, body: Body) -> Body:
         raise SegmentationError(f"{path}: labels file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise SegmentationError(f"{path}: not a readable labels file ({error})") from None
+    except RecursionError:   # '[[[[…' nested deeper than any labels file
+        raise SegmentationError(f"{path}: not an allorules labels file (its JSON nests thousands of levels deep)") from None
     if not isinstance(document, dict) or document.get("format") != LABELS_FORMAT:
         raise SegmentationError(f'{path}: not an allorules labels file (expected "format": "{LABELS_FORMAT}")')
     if document.get("version") != LABELS_VERSION:
@@ -187,6 +189,9 @@ def read_merge_file(path: str | Path, patch_count: int, required: tuple[str, ...
     required = QUADRUPED_REGIONS if required is None else tuple(required)
     path = Path(path)
     try:
+        too_large = text_size_problem(path.stat().st_size, "merge file") if path.is_file() else None
+        if too_large:
+            raise MergeFileError(too_large, SourceLocation(path))
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise MergeFileError("merge file not found", SourceLocation(path)) from None
@@ -194,6 +199,9 @@ def read_merge_file(path: str | Path, patch_count: int, required: tuple[str, ...
         raise MergeFileError(f"cannot read merge file ({error})", SourceLocation(path)) from None
     try:
         root = yaml.compose(text)
+    except RecursionError:
+        raise MergeFileError("the YAML nests too deeply; a merge file maps each region to a list of patch ids, "
+                             "e.g. 'head: [3, 17]'", SourceLocation(path)) from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
