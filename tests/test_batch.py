@@ -442,3 +442,13 @@ def test_a_bad_scheduler_is_a_manifest_error(inputs, tmp_path, value):
     with pytest.raises(ManifestError) as caught:
         load_manifest(write_manifest(tmp_path, MANIFEST + f"scheduler: {value}\n"))
     assert "manifest.yaml:9" in str(caught.value) and "scheduler" in str(caught.value)
+
+
+def test_shared_files_go_with_a_scheduler(inputs, tmp_path, capsys):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST)
+    assert main(["batch", str(manifest), "--shared-files"]) == 2
+    assert "--shared-files goes with --scheduler" in capsys.readouterr().err
+    with pytest.raises(ManifestError, match="manifest.yaml:9.*'shared_files' is true or false"):
+        load_manifest(write_manifest(tmp_path, MANIFEST + "shared_files: sometimes\n"))
+    assert load_manifest(write_manifest(tmp_path, MANIFEST + "shared_files: true\n")).shared_files is True

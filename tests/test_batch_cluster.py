@@ -343,3 +343,34 @@ def test_a_job_carries_its_files_and_runs_where_they_are_not(animals, tmp_path, 
     assert outcome.report["job"]["mesh"] == str(job.mesh)
     assert str(job.segmentation) in outcome.report["labels"]["source"]
     assert "allorules-job-" not in json.dumps(outcome.report)   # no worker scratch path leaks into the report
+
+
+def test_shared_files_travel_as_paths_and_outputs_are_moved_into_place(cluster, animals, tmp_path, monkeypatch):
+    sizes = []
+    make = cluster_module.job_payload
+
+    def recorded(*args, **kwargs):
+        payload = make(*args, **kwargs)
+        sizes.append(payload.size)
+        return payload
+
+    monkeypatch.setattr(cluster_module, "job_payload", recorded)
+    path = manifest(tmp_path, animals, ["horse"], rulesets="[global]")
+    path.write_text(path.read_text() + "shared_files: true\n")
+    result = run_batch(path, scheduler=cluster.address)
+    assert sizes == [0, 0]                        # no file's bytes went through Dask
+    assert [row["status"] for row in result.rows] == ["done", "done"]
+    out = tmp_path / "out"
+    for row in result.rows:
+        report = json.loads((out / row["job"] / "report.json").read_text())
+        assert report["result"]["mass_ratio"] == pytest.approx(row["ratio"], rel=1e-3)
+        assert (out / row["output"]).stat().st_size > 0
+    assert not (out / ".allorules-staging").exists()
+
+
+def test_shared_files_a_worker_cannot_see_is_a_clear_failure(tmp_path, blas_restored):
+    from allorules.runs.jobs import Job
+
+    job = Job(tmp_path / "not-here.obj", "ghost", None, 2.0, "global", 12, "obj")
+    outcome = cluster_module.run_payload(cluster_module.job_payload(job, "f", shared_output=tmp_path / "out"))
+    assert "does not see" in outcome.report["error"] and "without --shared-files" in outcome.report["error"]

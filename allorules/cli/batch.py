@@ -24,6 +24,9 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run the jobs on a Dask cluster: its scheduler's address (tcp://HOST:PORT) or scheduler "
                         "file (.json); needs pip install 'allorules[distributed]' (docs/batch.md)")
+    parser.add_argument("--shared-files", action="store_true",
+                        help="with --scheduler: the workers see the manifest's files and the output folder at the same "
+                        "paths (a shared file system), so jobs carry paths instead of file contents")
     parser.add_argument("--redo", action="store_true", help="run finished jobs again too")
     parser.set_defaults(run=run)
 

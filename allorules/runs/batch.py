@@ -68,7 +68,7 @@ from allorules.runs.jobs import (  # noqa: F401  (the batch API: one import for 
 log = logging.getLogger("allorules")
 
 OUTPUT_FORMATS = ("obj", "ply", "stl", "glb", "off")   # allorules.output.export.SUPPORTED_FORMATS, checked by a test
-MANIFEST_KEYS = ("output", "meshes", "ratios", "rulesets", "modes", "format", "plugins", "scheduler")
+MANIFEST_KEYS = ("output", "meshes", "ratios", "rulesets", "modes", "format", "plugins", "scheduler", "shared_files")
 MESH_KEYS = ("path", "segmentation", "name")
 
 
@@ -100,6 +100,7 @@ class Manifest:
     format: str | None = None          # output extension without dot; None: the input's
     plugins: tuple[Path, ...] = ()
     scheduler: str | None = None       # a Dask scheduler's address or scheduler file; None: this machine
+    shared_files: bool = False         # the Dask workers see the inputs and the output folder at the same paths
 
     def jobs(self) -> list["Job"]:
         return [Job(mesh.path, mesh.name, mesh.segmentation, ratio, ruleset, self.modes,
@@ -243,8 +244,12 @@ def load_manifest(path: str | Path) -> Manifest:
             scheduler = scheduler_address(scheduler, base)
         except AllorulesError as error:
             raise ManifestError(str(error), at("scheduler")) from None
+    shared_files = data.get("shared_files", False)
+    if not isinstance(shared_files, bool):
+        raise ManifestError("'shared_files' is true or false (true: the Dask workers see these files and the output "
+                            "folder at the same paths)", at("shared_files"))
     return Manifest(path, output_path, tuple(meshes), tuple(ratios), tuple(rulesets), modes, output_format,
-                    tuple(plugins), scheduler)
+                    tuple(plugins), scheduler, shared_files)
 
 
 
@@ -335,8 +340,16 @@ def check_output_folder(folder: Path) -> None:
 
 
 def remove_leftovers(folder: Path, jobs: Sequence[Job]) -> int:
-    """Delete the temporary files of atomic writes that a killed run left behind (``.NAME.*.tmp``)."""
+    """Delete the temporary files of atomic writes that a killed run left behind (``.NAME.*.tmp``),
+    and the staging folder of jobs run on Dask workers with shared files."""
+    import shutil
+
+    from allorules.runs.cluster import STAGING
+
     removed = 0
+    if (folder / STAGING).is_dir():
+        shutil.rmtree(folder / STAGING, ignore_errors=True)
+        removed += 1
     for place in [folder] + [folder / job.id for job in jobs]:
         if not place.is_dir():
             continue
@@ -356,11 +369,13 @@ def run_batch(
     redo: bool = False,
     scale: Callable[[Job, Path], dict] | None = None,
     scheduler: str | None = None,
+    shared_files: bool | None = None,
 ) -> BatchResult:
     """Run a manifest's unfinished jobs, ``jobs`` at a time (default: every core; 1 runs them in
     this process, in order), or on the Dask cluster whose scheduler is ``scheduler`` (an address
     ``tcp://HOST:PORT`` or a scheduler file; default: the manifest's ``scheduler:``), and write
-    the summary. ``redo`` runs finished jobs again. ``scale`` replaces :func:`scale_job` (tests;
+    the summary. ``shared_files`` (default: the manifest's): the workers see the inputs and the
+    output folder at the same paths, so jobs carry paths, not bytes. ``redo`` runs finished jobs again. ``scale`` replaces :func:`scale_job` (tests;
     only used in-process). A Ctrl-C (or SIGTERM under :func:`terminated_as_interrupted`) writes
     the summary of what is finished and re-raises."""
     manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
@@ -380,14 +395,18 @@ def run_batch(
         from allorules.runs.cluster import connect
 
         client = connect(scheduler)   # before any work: no Dask, or no scheduler there, is said at once
+    shared = manifest.shared_files if shared_files is None else shared_files
+    if shared_files and not scheduler:
+        raise AllorulesError("--shared-files goes with --scheduler: it says the Dask workers share this machine's "
+                             "folders")
     try:
-        return _run_batch(manifest, workers, redo, scale, client)
+        return _run_batch(manifest, workers, redo, scale, client, shared)
     finally:
         if client is not None:
             client.close()
 
 
-def _run_batch(manifest: Manifest, workers: int, redo: bool, scale, client) -> BatchResult:
+def _run_batch(manifest: Manifest, workers: int, redo: bool, scale, client, shared_files: bool) -> BatchResult:
     check_output_folder(manifest.output)
     all_jobs = manifest.jobs()
     removed = remove_leftovers(manifest.output, all_jobs)
@@ -421,7 +440,8 @@ def _run_batch(manifest: Manifest, workers: int, redo: bool, scale, client) -> B
         if client is not None:
             from allorules.runs.cluster import run_on_cluster
 
-            run_on_cluster(client, pending, manifest.output, fingerprints, rulesets, progress)
+            run_on_cluster(client, pending, manifest.output, fingerprints, rulesets, progress,
+                           shared_files=shared_files)
         elif workers == 1 or len(pending) <= 1:
             for job in pending:
                 progress.running = 1
@@ -587,7 +607,8 @@ def run_batch_command(arguments) -> int:
     try:
         with terminated_as_interrupted():
             result = run_batch(arguments.manifest, jobs=arguments.jobs, redo=arguments.redo,
-                               scheduler=getattr(arguments, "scheduler", None))
+                               scheduler=getattr(arguments, "scheduler", None),
+                               shared_files=True if getattr(arguments, "shared_files", False) else None)
     except BatchTerminated as stop:
         print(f"allorules batch: {stop} received: stopped; the summary is written; run the same command again "
               "to resume", file=sys.stderr)

@@ -13,6 +13,11 @@ worker's own scratch space, runs the job through the one run pipeline
 (:func:`allorules.runs.jobs.run_job`), and returns its report and output files
 (:class:`JobOutcome`); the worker's file system is never shared with the client's.
 
+**Where the folders are shared** (``--shared-files``, ``shared_files: true``: the workers see the
+manifest's files and the output folder at the same paths), a job carries only its paths; the
+worker runs it in a staging folder inside the output folder (``.allorules-staging/``) and the
+client moves the files into place (a rename on the same file system: no bytes travel).
+
 **The client writes**, in the output folder, each job's files atomically, its mesh first and its
 report (the "done" marker) last, exactly as the local pool does: resuming, failures per job and
 the summary work the same. Each finished future is written once; a future finishes once.
@@ -44,10 +49,11 @@ from typing import Any, Sequence
 
 from allorules import __version__
 from allorules.errors import AllorulesError
-from allorules.runs.jobs import GLOBAL, REPORT_NAME, Job, record_failure, run_job
+from allorules.runs.jobs import GLOBAL, REPORT_NAME, STATUS_FAILED, Job, record_failure, run_job
 
 log = logging.getLogger("allorules")
 
+STAGING = ".allorules-staging"   # in the output folder: where workers run jobs when the folders are shared
 INSTALL_HINT = "pip install 'allorules[distributed]' (it brings dask and distributed)"
 CONNECT_SECONDS = 20
 POLL_SECONDS = 0.25
@@ -127,6 +133,8 @@ class JobPayload:
     ruleset_files: tuple[CarriedFile, ...] = ()
     ruleset_origin: str | None = None          # where the client read the ruleset
     plugins: tuple[tuple[str, tuple[CarriedFile, ...]], ...] = ()   # (client path, its files)
+    staging: str | None = None                 # shared files: the job's paths are valid on the worker, and
+                                               # it runs in this folder (inside the output folder)
 
     @property
     def size(self) -> int:
@@ -144,10 +152,14 @@ def _carry(path: Path, relative_to: Path) -> list[CarriedFile]:
     return [CarriedFile(path.relative_to(relative_to).as_posix(), path.read_bytes())]
 
 
-def job_payload(job: Job, fingerprint: str, ruleset=None) -> JobPayload:
+def job_payload(job: Job, fingerprint: str, ruleset=None, *, shared_output: Path | None = None) -> JobPayload:
     """What ``job`` carries to a worker; ``ruleset`` is its resolved
-    :class:`~allorules.rules.model.Ruleset` (``None`` for global scaling)."""
+    :class:`~allorules.rules.model.Ruleset` (``None`` for global scaling). With ``shared_output``
+    (the output folder, seen by the workers at the same path) the job carries no file, only paths."""
     from allorules.mesh.references import referenced_files
+
+    if shared_output is not None:
+        return JobPayload(job, fingerprint, (), staging=str(shared_output / STAGING))
 
     mesh = [CarriedFile(job.mesh.name, job.mesh.read_bytes())]
     mesh += [CarriedFile(name, (job.mesh.parent / name).read_bytes()) for name in referenced_files(job.mesh)
@@ -254,6 +266,8 @@ class JobOutcome:
     messages: list[str] = field(default_factory=list)
     allorules: str = __version__
     worker: str | None = None
+    staged: dict[str, str] = field(default_factory=dict)   # shared files: name → the file in the staging folder
+    staging: str | None = None
 
 
 _blas_lock = threading.Lock()
@@ -305,9 +319,13 @@ def _worker_address() -> tuple[str | None, Path]:
 
 def run_payload(payload: JobPayload) -> JobOutcome:
     """Run one job on a worker: its files laid out in a temporary folder, the job run through the
-    pipeline (:func:`allorules.runs.jobs.run_job`), its report and output files returned."""
+    pipeline (:func:`allorules.runs.jobs.run_job`), its report and output files returned. With
+    shared files, the job runs on its own paths in a staging folder and returns the staged files'
+    paths instead of their bytes."""
     one_blas_thread()
     address, scratch = _worker_address()
+    if payload.staging is not None:
+        return _run_shared(payload, address)
     with tempfile.TemporaryDirectory(prefix="allorules-job-", dir=scratch) as temporary:
         folder = Path(temporary)
         job, renamed = materialise(payload, folder)
@@ -317,14 +335,44 @@ def run_payload(payload: JobPayload) -> JobOutcome:
         finally:
             logging.getLogger("allorules").removeHandler(handler)
         produced = folder / "out" / job.id
-        files = {item.relative_to(produced).as_posix(): item.read_bytes() for item in sorted(produced.rglob("*"))
-                 if item.is_file() and item.name != REPORT_NAME and not item.name.endswith(".tmp")}
+        files = {item.relative_to(produced).as_posix(): item.read_bytes() for item in _produced(produced)}
         renamed[str(produced)] = f"<output>/{payload.job.id}"
         renamed[str(folder)] = "<worker scratch>"
         report = _renamed(report, renamed)
     report["job"] = payload.job.describe()
     report["worker"] = address
     return JobOutcome(report, files, [_renamed(m, renamed) for m in handler.messages], __version__, address)
+
+
+def _produced(folder: Path) -> list[Path]:
+    return [item for item in sorted(folder.rglob("*"))
+            if item.is_file() and item.name != REPORT_NAME and not item.name.endswith(".tmp")]
+
+
+def _run_shared(payload: JobPayload, address: str | None) -> JobOutcome:
+    job = payload.job
+    missing = [path for path in (job.mesh, job.segmentation, *job.plugins) if path is not None and not path.exists()]
+    staging = Path(payload.staging)
+    if missing or not staging.parent.is_dir():
+        where = missing[0] if missing else staging.parent
+        report = {"status": STATUS_FAILED, "worker": address,
+                  "error": f"worker {address} does not see {where}: the folders are not shared with it; "
+                           "run without --shared-files (the jobs then carry their files)"}
+        return JobOutcome(report, {}, [], __version__, address)
+    staging.mkdir(exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix=f"{job.id}.", dir=staging))
+    handler = _capture()
+    try:
+        report = run_job(job, folder, payload.fingerprint)
+    finally:
+        logging.getLogger("allorules").removeHandler(handler)
+    produced = folder / job.id
+    renamed = {str(produced): f"<output>/{job.id}"}
+    report = _renamed(report, renamed)
+    report["worker"] = address
+    staged = {item.relative_to(produced).as_posix(): str(item) for item in _produced(produced)}
+    return JobOutcome(report, {}, [_renamed(m, renamed) for m in handler.messages], __version__, address,
+                      staged, str(folder))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -336,9 +384,18 @@ def write_outcome(job: Job, outcome: JobOutcome, output: Path) -> dict[str, Any]
     from allorules.files import atomic_write, write_json
 
     folder = output / job.id
+    folder.mkdir(parents=True, exist_ok=True)
     for name, data in sorted(outcome.files.items()):
         atomic_write(_inside(folder, name), data)
+    for name, staged in sorted(outcome.staged.items()):   # shared files: a rename, no copy
+        target = _inside(folder, name)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staged, target)
     write_json(folder / REPORT_NAME, outcome.report)
+    if outcome.staging:
+        import shutil
+
+        shutil.rmtree(outcome.staging, ignore_errors=True)
     return outcome.report
 
 
@@ -400,11 +457,13 @@ class _ClusterWatch:
 
 
 def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: dict[str, str],
-                   rulesets: dict[str, Any], progress) -> None:
+                   rulesets: dict[str, Any], progress, *, shared_files: bool = False) -> None:
     """Run ``pending`` jobs on the cluster of ``client``, writing each job's outputs and report as
     it finishes and telling ``progress`` (:class:`allorules.runs.batch.BatchProgress`). Jobs are
     submitted a window at a time (twice the cluster's threads, at least 4), so the client holds
-    few payloads at once. Any interruption cancels the futures in flight and re-raises."""
+    few payloads at once. ``shared_files``: the workers see the inputs and ``output`` at the same
+    paths (jobs carry paths; outputs are moved into place). Any interruption cancels the futures in
+    flight and re-raises."""
     queue: deque[Job] = deque(pending)
     in_flight: dict[Any, Job] = {}
     watch = _ClusterWatch(client)
@@ -414,7 +473,8 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
         while queue or in_flight:
             while queue and len(in_flight) < max(4, 2 * watch.threads()):
                 job = queue.popleft()
-                payload = job_payload(job, fingerprints[job.id], rulesets.get(job.ruleset))
+                payload = job_payload(job, fingerprints[job.id], rulesets.get(job.ruleset),
+                                      shared_output=output if shared_files else None)
                 future = client.submit(run_payload, payload, key=_key(job, fingerprints[job.id]), pure=False,
                                        retries=0)
                 in_flight[future] = job
@@ -435,7 +495,10 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
                         told_version.add(outcome.allorules)
                         log.warning("cluster: worker %s runs allorules %s, this client %s; install the same "
                                     "version everywhere", outcome.worker, outcome.allorules, __version__)
-                    report = write_outcome(job, outcome, output)
+                    if "format" in outcome.report:
+                        report = write_outcome(job, outcome, output)
+                    else:   # the job could not start there (shared files not seen)
+                        report = record_failure(job, output, fingerprints[job.id], outcome.report["error"])
                 progress.running = max(0, progress.running - 1)
                 progress.finished(job, report)
             if not completed:
@@ -444,6 +507,11 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
             if client.status not in ("running", "connecting"):
                 raise ClusterError(f"the Dask client is {client.status}: lost the scheduler; run the batch again to "
                                    "resume")
+        if shared_files:
+            try:
+                (output / STAGING).rmdir()   # empty once every job's files are in place
+            except OSError:
+                pass
     except BaseException:
         if in_flight:
             try:
