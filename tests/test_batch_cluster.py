@@ -374,3 +374,23 @@ def test_shared_files_a_worker_cannot_see_is_a_clear_failure(tmp_path, blas_rest
     job = Job(tmp_path / "not-here.obj", "ghost", None, 2.0, "global", 12, "obj")
     outcome = cluster_module.run_payload(cluster_module.job_payload(job, "f", shared_output=tmp_path / "out"))
     assert "does not see" in outcome.report["error"] and "without --shared-files" in outcome.report["error"]
+
+
+def test_a_lost_scheduler_stops_the_run_with_its_summary(own_cluster, animals, tmp_path):
+    from allorules.runs.cluster import ClusterError
+
+    path = manifest(tmp_path, animals, ["horse", "dog"], modes=24)
+    out = tmp_path / "out"
+
+    def kill_the_scheduler() -> None:
+        deadline = time.monotonic() + 300
+        while not any(out.glob("*/report.json")) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        own_cluster.kill("scheduler")
+
+    threading.Thread(target=kill_the_scheduler, daemon=True).start()
+    with pytest.raises(ClusterError, match="lost the connection to the Dask scheduler"):
+        run_batch(path, scheduler=own_cluster.address)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and summary["counts"]["done"] >= 1 and summary["counts"]["not run"] >= 1
+    assert summary["counts"]["failed"] == 0        # a lost scheduler is not the jobs' failure

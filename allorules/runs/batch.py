@@ -403,7 +403,9 @@ def run_batch(
         return _run_batch(manifest, workers, redo, scale, client, shared)
     finally:
         if client is not None:
-            client.close()
+            from allorules.runs.cluster import disconnect
+
+            disconnect(client)
 
 
 def _run_batch(manifest: Manifest, workers: int, redo: bool, scale, client, shared_files: bool) -> BatchResult:

@@ -42,6 +42,7 @@ import re
 import tempfile
 import threading
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,6 +108,28 @@ def connect(address: str):
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ClusterError(f"cannot reach the Dask scheduler at {address} ({reason}); start one with "
                            "'dask scheduler' and give the address it prints") from None
+
+
+def _from_dask(record: logging.LogRecord) -> bool:
+    return record.name.split(".")[0] in ("distributed", "tornado", "asyncio") or "/distributed/" in record.pathname
+
+
+def disconnect(client) -> None:
+    """Close the client. After the scheduler was lost, Dask's own reconnect attempts end in
+    tracebacks on its loggers as the client closes; the user has had the one-line reason, so
+    Dask's messages are kept off the terminal while it closes."""
+    quiet = logging.Filter()
+    quiet.filter = lambda record: not _from_dask(record)   # type: ignore[method-assign]
+    handlers = list(logging.getLogger().handlers)
+    for handler in handlers:
+        handler.addFilter(quiet)
+    try:
+        client.close(timeout=10)
+    except Exception:   # closing a client whose scheduler is gone may fail: nothing is left to close
+        pass
+    finally:
+        for handler in handlers:
+            handler.removeFilter(quiet)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -392,6 +415,7 @@ def write_outcome(job: Job, outcome: JobOutcome, output: Path) -> dict[str, Any]
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(staged, target)
     write_json(folder / REPORT_NAME, outcome.report)
+    log.debug("cluster: wrote %s (%s)", folder, ", ".join(sorted([*outcome.files, *outcome.staged, REPORT_NAME])))
     if outcome.staging:
         import shutil
 
@@ -475,8 +499,10 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
                 job = queue.popleft()
                 payload = job_payload(job, fingerprints[job.id], rulesets.get(job.ruleset),
                                       shared_output=output if shared_files else None)
-                future = client.submit(run_payload, payload, key=_key(job, fingerprints[job.id]), pure=False,
-                                       retries=0)
+                with warnings.catch_warnings():   # a job carrying a large mesh is the design, not a mistake
+                    warnings.filterwarnings("ignore", message="Sending large graph")
+                    future = client.submit(run_payload, payload, key=_key(job, fingerprints[job.id]), pure=False,
+                                           retries=0)
                 in_flight[future] = job
             completed = [future for future in in_flight if future.done()]
             for future in completed:
@@ -484,9 +510,9 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
                 try:
                     outcome = future.result()
                 except Exception as error:   # the task never returned a report: record why
-                    if future.status == "cancelled" and client.status != "running":
-                        raise ClusterError("lost the connection to the Dask scheduler; run the batch again to "
-                                           "resume") from None
+                    if future.status == "cancelled":   # not by us: the scheduler went away or restarted
+                        raise ClusterError("lost the connection to the Dask scheduler (or it restarted); run the "
+                                           "batch again to resume") from None
                     report = record_failure(job, output, fingerprints[job.id], _failure(job, error))
                 else:
                     for message in outcome.messages:
