@@ -16,7 +16,8 @@ def register(subcommands: argparse._SubParsersAction) -> None:
         "batch",
         help="run many meshes × ratios × rulesets from a manifest, in parallel; resumes where it stopped",
         description="Scale every mesh of a manifest by every mass ratio with every ruleset ('global' for "
-        "global scaling), one job per core, skipping jobs finished by an earlier run with the same inputs.",
+        "global scaling), one job per core or on a Dask cluster (--scheduler), skipping jobs finished by an "
+        "earlier run with the same inputs.",
     )
     parser.add_argument("manifest", help="manifest YAML (see docs/batch.md)")
     parser.add_argument("-j", "--jobs", type=int, metavar="N",
