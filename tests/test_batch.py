@@ -3,7 +3,13 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -249,3 +255,200 @@ def test_cli_reports_manifest_errors_in_one_line(tmp_path, capsys):
     assert main(["batch", str(path)]) == 2
     error = capsys.readouterr().err.strip()
     assert error.startswith("allorules batch: error:") and "bad.yaml:1" in error and len(error.splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Stopping a batch (issue 19 §5): its workers go with it; SIGTERM writes the summary.
+
+CLI = [sys.executable, "-c", "import sys; from allorules.cli import main; sys.exit(main())"]
+SIGNAL_MANIFEST = """\
+output: out
+meshes:
+  - path: horse.obj
+    segmentation: horse.labels.json
+ratios: [0.6, 0.8, 1.25, 1.6]
+rulesets: [global, quadruped]
+modes: 12
+"""
+
+
+def descendants(pid: int) -> set[int]:
+    """Every live process below ``pid`` (from /proc)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()
+            if fields[0] != "Z":
+                parents[int(entry.name)] = int(fields[1])
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {child for child, parent in parents.items() if parent in frontier} - found
+        found |= frontier
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return state[state.rindex(")") + 2] != "Z"
+
+
+@pytest.fixture
+def running_batch(inputs, tmp_path):
+    """``allorules batch --jobs 2`` started as a process, once both its workers run jobs; stopped
+    (with every process it started) however the test ends."""
+    if not Path("/proc/self/stat").exists():
+        pytest.skip("needs /proc to see the batch's worker processes")
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, SIGNAL_MANIFEST)
+    process = subprocess.Popen(CLI + ["batch", str(manifest), "--jobs", "2"], cwd=tmp_path, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    seen: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and process.poll() is None:
+            seen |= descendants(process.pid)
+            workers = [pid for pid in seen if alive(pid) and b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+            if len(workers) == 2 and any((tmp_path / "out").glob("*__*")):
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail(f"the batch did not start two workers: {process.communicate()[0] if process.poll() is not None else ''}")
+        yield process, tmp_path / "out", set(workers)
+    finally:
+        for pid in [process.pid] + sorted(seen | descendants(process.pid)):
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        process.communicate()
+
+
+def wait_gone(pids: set[int], seconds: float = 10.0) -> set[int]:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and any(alive(pid) for pid in pids):
+        time.sleep(0.05)
+    return {pid for pid in pids if alive(pid)}
+
+
+@pytest.mark.slow
+def test_a_batch_killed_with_sigkill_takes_its_workers_with_it(running_batch):
+    process, out, workers = running_batch
+    assert all(alive(pid) for pid in workers)
+    process.kill()
+    process.wait(10)
+    assert wait_gone(workers, 5.0) == set()     # they used to run on, orphaned, forever
+    assert not (out / "summary.json").exists() or json.loads((out / "summary.json").read_text())
+
+
+@pytest.mark.slow
+def test_a_terminated_batch_stops_its_workers_and_writes_its_summary(running_batch):
+    process, out, workers = running_batch
+    process.terminate()
+    printed, _ = process.communicate(timeout=60)
+    assert process.returncode == 128 + signal.SIGTERM, printed
+    assert "SIGTERM" in printed and "Traceback" not in printed
+    assert wait_gone(workers) == set()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert sum(summary["counts"].values()) == 8 and summary["counts"]["not run"] >= 1
+    assert not list(out.rglob(".*.tmp"))          # no half-written file left behind
+    # Resuming runs only what was not finished (a stand-in scaling: which jobs run is the point).
+    finished = {row["job"] for row in summary["jobs"] if row["status"] == "done"}
+    resumed = []
+    result = run_batch(out.parent / "manifest.yaml", jobs=1, scale=lambda job, folder: resumed.append(job.id) or {})
+    assert result.skipped == len(finished) and sorted(resumed) == sorted({row["job"] for row in summary["jobs"]} - finished)
+
+
+def test_an_unknown_output_format_is_refused_before_anything_runs(inputs, tmp_path, capsys):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST.replace("modes: 12", "modes: 12\nformat: fbx"))
+    assert main(["batch", str(manifest)]) == 2
+    error = capsys.readouterr().err
+    assert "manifest.yaml:9" in error and "'fbx' is not one of obj, ply, stl, glb, off" in error
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_batch_formats_are_the_exporters():
+    from allorules.output.export import SUPPORTED_FORMATS
+    from allorules.runs.batch import OUTPUT_FORMATS
+
+    assert tuple(f".{name}" for name in OUTPUT_FORMATS) == SUPPORTED_FORMATS
+
+
+def test_an_output_folder_that_cannot_be_written_is_refused_before_anything_runs(inputs, tmp_path, capsys):
+    copy_inputs(inputs, tmp_path)
+    (tmp_path / "blocked").write_text("a file where the output folder's parent should be")
+    manifest = write_manifest(tmp_path, MANIFEST.replace("output: out", "output: blocked/out"))
+    calls = []
+    with pytest.raises(AllorulesError, match="cannot write into the output folder"):
+        run_batch(manifest, jobs=1, scale=lambda job, folder: calls.append(job))
+    assert calls == []
+
+
+def test_leftover_temporary_files_of_a_killed_run_are_removed(inputs, tmp_path):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST)
+    folder = tmp_path / "out" / "horse__global__x0.9"
+    folder.mkdir(parents=True)
+    (folder / ".horse_global_x0.9.obj.abc123.tmp").write_text("half a mesh")
+    (folder / "keep.txt").write_text("not ours to delete")
+    run_batch(manifest, jobs=1, scale=lambda job, folder: {})
+    assert not (folder / ".horse_global_x0.9.obj.abc123.tmp").exists() and (folder / "keep.txt").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# The scheduler option without Dask, and in the manifest (the cluster itself: test_batch_cluster.py)
+
+
+def test_scheduler_without_dask_says_what_to_install(inputs, tmp_path, capsys, monkeypatch):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST)
+    monkeypatch.setitem(sys.modules, "distributed", None)     # as if it were not installed
+    assert main(["batch", str(manifest), "--scheduler", "tcp://127.0.0.1:8786"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "pip install 'allorules[distributed]'" in error
+    assert not (tmp_path / "out").exists()
+
+
+def test_scheduler_and_jobs_do_not_go_together(inputs, tmp_path, capsys):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST)
+    assert main(["batch", str(manifest), "--scheduler", "tcp://127.0.0.1:8786", "--jobs", "2"]) == 2
+    assert "--jobs is for runs on this machine" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value, expected", [
+    ("tcp://10.0.0.5:8786", "tcp://10.0.0.5:8786"),
+    ("node17:8786", "tcp://node17:8786"),
+    ("tls://head.cluster:8786", "tls://head.cluster:8786"),
+    ("cluster/scheduler.json", "SCHEDULER_FILE"),
+])
+def test_the_manifest_names_the_scheduler(inputs, tmp_path, value, expected):
+    copy_inputs(inputs, tmp_path)
+    manifest = load_manifest(write_manifest(tmp_path, MANIFEST + f"scheduler: {value}\n"))
+    if expected == "SCHEDULER_FILE":
+        expected = str((tmp_path / "cluster" / "scheduler.json").resolve())
+    assert manifest.scheduler == expected
+
+
+@pytest.mark.parametrize("value", ["42", "somewhere", "''"])
+def test_a_bad_scheduler_is_a_manifest_error(inputs, tmp_path, value):
+    copy_inputs(inputs, tmp_path)
+    with pytest.raises(ManifestError) as caught:
+        load_manifest(write_manifest(tmp_path, MANIFEST + f"scheduler: {value}\n"))
+    assert "manifest.yaml:9" in str(caught.value) and "scheduler" in str(caught.value)
+
+
+def test_shared_files_go_with_a_scheduler(inputs, tmp_path, capsys):
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST)
+    assert main(["batch", str(manifest), "--shared-files"]) == 2
+    assert "--shared-files goes with --scheduler" in capsys.readouterr().err
+    with pytest.raises(ManifestError, match="manifest.yaml:9.*'shared_files' is true or false"):
+        load_manifest(write_manifest(tmp_path, MANIFEST + "shared_files: sometimes\n"))
+    assert load_manifest(write_manifest(tmp_path, MANIFEST + "shared_files: true\n")).shared_files is True

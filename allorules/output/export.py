@@ -24,7 +24,6 @@ Helpers :func:`atomic_write` / :func:`atomic_path` are shared by the render and 
 from __future__ import annotations
 
 import logging
-import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +34,7 @@ import numpy as np
 from allorules.errors import MeshError
 from allorules.files import _same_file, atomic_path, atomic_write
 from allorules.mesh.geometry import face_normals, vertex_normals
+from allorules.mesh.references import MTLLIB, TEXTURE_MAP, texture_name
 
 log = logging.getLogger("allorules.output.export")
 
@@ -387,13 +387,11 @@ def _number(value: float) -> str:
     return f"{value:.9g}"
 
 
-_MTLLIB = re.compile(r"^\s*mtllib\s+(.+?)\s*$")
-_MAP = re.compile(r"^\s*(map_\w+|bump|disp|decal|refl|norm)\s+(.+?)\s*$", re.IGNORECASE)
 
 
 def _bring_materials(input_path: Path, output_path: Path, text: str, overwrite: bool, result: SaveResult) -> None:
     """Make the output's ``mtllib`` resolve as the input's did; say so when it cannot."""
-    libraries = [match.group(1) for match in map(_MTLLIB.match, text.splitlines()) if match]
+    libraries = [match.group(1) for match in map(MTLLIB.match, text.splitlines()) if match]
     input_folder, output_folder = input_path.parent.resolve(), output_path.parent.resolve()
     for library in libraries:
         source_library = input_folder / library
@@ -412,10 +410,10 @@ def _bring_materials(input_path: Path, output_path: Path, text: str, overwrite: 
             result.extra_files.append(target_library)
         # Textures are referenced; copy only the ones the output's folder would miss.
         for line in source_library.read_text(encoding="utf-8", errors="replace").splitlines():
-            match = _MAP.match(line)
+            match = TEXTURE_MAP.match(line)
             if not match:
                 continue
-            texture = match.group(2).split()[-1]
+            texture = texture_name(match)
             if Path(texture).is_absolute() or (output_folder / texture).exists():
                 continue
             original = (input_folder / texture)

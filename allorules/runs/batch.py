@@ -2,8 +2,9 @@
 
 A manifest (YAML, safe-loaded; schema in docs/batch.md) names meshes (paths relative to the
 manifest), mass ratios and rulesets (``global`` for global allometric scaling). Every combination
-is a :class:`Job`. :func:`run_batch` runs the jobs that are not finished yet in a process pool
-(all cores by default) and writes one summary.
+is a :class:`~allorules.runs.jobs.Job`. :func:`run_batch` runs the jobs that are not finished yet
+in a process pool (all cores by default), or on a Dask cluster (``scheduler``, see
+:mod:`allorules.runs.cluster`), and writes one summary.
 
 **Resuming.** Each job writes into its own folder ``<output>/<job id>/``: first the scaled mesh,
 then ``report.json``, both atomically (temporary file + ``os.replace``). The report is the
@@ -17,8 +18,12 @@ run again. An interrupted run therefore loses at most the jobs that were in flig
 in the summary) without stopping the others; they are retried on the next run.
 
 **Summary**: ``summary.json`` (every job, its status and figures), ``summary.csv`` and
-``summary.md`` (one table), written atomically at the end of every run, also an interrupted one
-(jobs not reached are listed as ``not run``).
+``summary.md`` (one table), written atomically at the end of every run, also an interrupted
+(Ctrl-C, SIGTERM) one: jobs not reached are listed as ``not run``.
+
+**Stopping.** The pool's workers die with the batch: a worker whose parent is gone (even killed
+with SIGKILL) ends itself at once. SIGTERM (and SIGHUP) stop the batch as Ctrl-C does: the jobs
+in flight are stopped, the summary is written, the exit status is 143.
 
 This module imports nothing numerical at module level, so pool workers can limit their BLAS
 threads before numpy loads (one job per core, one thread per job).
@@ -26,33 +31,45 @@ threads before numpy loads (one job per core, one thread per job).
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
-import json
 import logging
 import math
 import os
-import re
+import signal
+import sys
+import threading
 import time
-import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-from allorules import __version__
 from allorules.errors import AllorulesError, RulesetError, SourceLocation
+from allorules.runs.jobs import (  # noqa: F401  (the batch API: one import for callers and tests)
+    GLOBAL,
+    REPORT_FORMAT,
+    REPORT_NAME,
+    REPORT_VERSION,
+    STATUS_DONE,
+    STATUS_FAILED,
+    STATUS_NOT_RUN,
+    Job,
+    ruleset_with_plugins,
+    is_finished,
+    job_fingerprint,
+    messages_named,
+    read_report,
+    record_failure,
+    run_job,
+    safe_name,
+    scale_job,
+)
 
 log = logging.getLogger("allorules")
 
-GLOBAL = "global"
-REPORT_NAME = "report.json"
-REPORT_FORMAT = "allorules-batch-job"
-REPORT_VERSION = 1
-OUTPUT_FORMATS = ("obj", "ply", "stl", "glb", "off")
-MANIFEST_KEYS = ("output", "meshes", "ratios", "rulesets", "modes", "format", "plugins")
+OUTPUT_FORMATS = ("obj", "ply", "stl", "glb", "off")   # allorules.output.export.SUPPORTED_FORMATS, checked by a test
+MANIFEST_KEYS = ("output", "meshes", "ratios", "rulesets", "modes", "format", "plugins", "scheduler", "shared_files")
 MESH_KEYS = ("path", "segmentation", "name")
-STATUS_DONE, STATUS_FAILED, STATUS_NOT_RUN = "done", "failed", "not run"
 
 
 class ManifestError(RulesetError):
@@ -82,6 +99,8 @@ class Manifest:
     modes: int | None = None
     format: str | None = None          # output extension without dot; None: the input's
     plugins: tuple[Path, ...] = ()
+    scheduler: str | None = None       # a Dask scheduler's address or scheduler file; None: this machine
+    shared_files: bool = False         # the Dask workers see the inputs and the output folder at the same paths
 
     def jobs(self) -> list["Job"]:
         return [Job(mesh.path, mesh.name, mesh.segmentation, ratio, ruleset, self.modes,
@@ -92,10 +111,6 @@ class Manifest:
 def _output_format(mesh: Path) -> str:
     suffix = mesh.suffix.lower().lstrip(".")
     return suffix if suffix in OUTPUT_FORMATS else "glb" if suffix == "gltf" else "obj"
-
-
-def _safe_name(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._") or "mesh"
 
 
 def _read_yaml(path: Path):
@@ -161,7 +176,7 @@ def load_manifest(path: str | Path) -> Manifest:
         name = item.get("name", mesh.stem)
         if not isinstance(name, str) or not name.strip():
             raise ManifestError("'name' must be text", at("meshes", index, "name"))
-        name = _safe_name(name)
+        name = safe_name(name)
         if any(entry.name == name for entry in meshes):
             raise ManifestError(f"two meshes are named {name!r}; give one of them a different 'name:'", where)
         meshes.append(MeshEntry(mesh, name, segmentation))
@@ -200,7 +215,7 @@ def load_manifest(path: str | Path) -> Manifest:
             if looks_like_path(value):
                 value = str((base / Path(value).expanduser()).resolve())
             try:
-                _load_ruleset(value, tuple(plugins))
+                ruleset_with_plugins(value, tuple(plugins))
             except AllorulesError as error:
                 raise ManifestError(f"ruleset {value!r}: {error}", at("rulesets", index)) from None
         if value in rulesets:
@@ -221,187 +236,51 @@ def load_manifest(path: str | Path) -> Manifest:
     output_path = (base / Path(output).expanduser()).resolve()
     if output_path.exists() and not output_path.is_dir():
         raise ManifestError(f"output {output!r} is a file; give a folder", at("output"))
-    return Manifest(path, output_path, tuple(meshes), tuple(ratios), tuple(rulesets), modes, output_format, tuple(plugins))
+    scheduler = data.get("scheduler")
+    if scheduler is not None:
+        from allorules.runs.cluster import scheduler_address
 
+        try:
+            scheduler = scheduler_address(scheduler, base)
+        except AllorulesError as error:
+            raise ManifestError(str(error), at("scheduler")) from None
+    shared_files = data.get("shared_files", False)
+    if not isinstance(shared_files, bool):
+        raise ManifestError("'shared_files' is true or false (true: the Dask workers see these files and the output "
+                            "folder at the same paths)", at("shared_files"))
+    return Manifest(path, output_path, tuple(meshes), tuple(ratios), tuple(rulesets), modes, output_format,
+                    tuple(plugins), scheduler, shared_files)
 
-# ---------------------------------------------------------------------------------------------
-# Jobs
-
-
-@dataclass(frozen=True)
-class Job:
-    """One mesh scaled by one mass ratio with one ruleset (or globally)."""
-
-    mesh: Path
-    name: str
-    segmentation: Path | None
-    ratio: float
-    ruleset: str
-    modes: int | None
-    format: str
-    plugins: tuple[Path, ...] = ()
-
-    @property
-    def ruleset_label(self) -> str:
-        return self.ruleset if self.ruleset == GLOBAL or not self.ruleset.endswith((".yaml", ".yml")) \
-            else _safe_name(Path(self.ruleset).stem)
-
-    @property
-    def id(self) -> str:
-        return f"{self.name}__{_safe_name(self.ruleset_label)}__x{self.ratio:g}"
-
-    @property
-    def output_name(self) -> str:
-        return f"{self.name}_{_safe_name(self.ruleset_label)}_x{self.ratio:g}.{self.format}"
-
-    def describe(self) -> dict[str, Any]:
-        return {"id": self.id, "mesh": str(self.mesh), "segmentation": str(self.segmentation) if self.segmentation else None,
-                "ratio": self.ratio, "ruleset": self.ruleset, "modes": self.modes, "format": self.format,
-                "plugins": [str(plugin) for plugin in self.plugins]}
-
-
-def _file_digest(path: Path) -> str:
-    digest = hashlib.sha256()
-    if path.is_dir():   # a plugin package: every file in it, in order
-        for item in sorted(path.rglob("*")):
-            if item.is_file() and "__pycache__" not in item.parts:
-                digest.update(str(item.relative_to(path)).encode())
-                digest.update(_file_digest(item).encode())
-        return digest.hexdigest()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
-def _load_ruleset(name: str, plugins: tuple[Path, ...]):
-    from allorules.plugins.registry import registry_for
-    from allorules.rules.resolve import load_ruleset
-
-    registry = registry_for(list(plugins))
-    return load_ruleset(name, registry), registry
-
-
-def job_fingerprint(job: Job, ruleset_text: str | None = None) -> str:
-    """SHA-256 over everything that decides a job's output (see the module docstring).
-
-    ``ruleset_text`` is the resolved ruleset (:func:`allorules.rules.dump_ruleset`); it is
-    computed when not given, so a changed ruleset file (or one it extends) redoes the job."""
-    if ruleset_text is None and job.ruleset != GLOBAL:
-        from allorules.rules.model import dump_ruleset
-
-        ruleset_text = dump_ruleset(_load_ruleset(job.ruleset, job.plugins)[0])
-    inputs = {
-        "mesh": _file_digest(job.mesh),
-        "segmentation": _file_digest(job.segmentation) if job.segmentation else None,
-        "ruleset": GLOBAL if job.ruleset == GLOBAL else ruleset_text,
-        "ratio": repr(float(job.ratio)),
-        "modes": job.modes,
-        "format": job.format,
-        "plugins": [_file_digest(plugin) for plugin in job.plugins],
-    }
-    return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()
-
-
-def read_report(folder: Path) -> dict | None:
-    """A job folder's report, or ``None`` when there is none or it cannot be read."""
-    try:
-        report = json.loads((folder / REPORT_NAME).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return report if isinstance(report, dict) and report.get("format") == REPORT_FORMAT else None
-
-
-def is_finished(job: Job, folder: Path, fingerprint: str) -> bool:
-    """Done before with the same inputs, and its mesh is still there."""
-    report = read_report(folder)
-    return (report is not None and report.get("status") == STATUS_DONE and report.get("fingerprint") == fingerprint
-            and (folder / job.output_name).is_file())
-
-
-def scale_job(job: Job, folder: Path) -> dict[str, Any]:
-    """Run one job through the pipeline (prepare, label, scale) and write its mesh; the report's figures."""
-    from allorules.plugins.registry import registry_for
-    from allorules.runs import pipeline
-
-    if job.ruleset == GLOBAL:
-        registry = registry_for(list(job.plugins))
-        scaling = pipeline.GlobalScaling(job.ratio)
-    else:
-        ruleset, registry = _load_ruleset(job.ruleset, job.plugins)
-        scaling = pipeline.RulesetScaling(ruleset, job.ratio)
-    run = pipeline.run(job.mesh, scaling, registry=registry, labels=job.segmentation, modes=job.modes)
-    saved = pipeline.save_output(run, folder / job.output_name, overwrite=True)
-    report = run.report()
-    return {"repairs": report.pop("repairs"), "labels": report.pop("labels"), "result": run.result.as_dict(),
-            "carried": list(saved.carried), "notes": list(saved.notes)}
-
-
-def _write_json(path: Path, document: dict) -> None:
-    from allorules.files import write_json
-
-    write_json(path, document)
-
-
-@contextmanager
-def messages_named(job_id: str) -> Iterator[None]:
-    """Prefix every ``allorules`` log message with ``job_id`` while a job runs.
-
-    Workers run in parallel and print to the same terminal: a warning such as "horse.obj: UVs
-    dropped" must say which job (mesh × ratio × ruleset) it came from."""
-    previous = logging.getLogRecordFactory()
-
-    def named(*args, **kwargs) -> logging.LogRecord:
-        record = previous(*args, **kwargs)
-        if record.name == "allorules" or record.name.startswith("allorules."):
-            record.msg = f"{job_id}: {record.msg}"
-        return record
-
-    logging.setLogRecordFactory(named)
-    try:
-        yield
-    finally:
-        logging.setLogRecordFactory(previous)
-
-
-def run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Path], dict] | None = None) -> dict[str, Any]:
-    """Run one job and write its report (the done marker) atomically; never raises for a job
-    that fails (the failure is its report), only for interruptions. Its log messages name it."""
-    with messages_named(job.id):
-        return _run_job(job, output, fingerprint, scale)
-
-
-def _run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Path], dict] | None) -> dict[str, Any]:
-    folder = output / job.id
-    folder.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    report: dict[str, Any] = {"format": REPORT_FORMAT, "version": REPORT_VERSION, "allorules": __version__,
-                              "job": job.describe(), "fingerprint": fingerprint, "output": job.output_name}
-    try:
-        report.update((scale or scale_job)(job, folder))
-        report["status"] = STATUS_DONE
-    except AllorulesError as error:
-        report.update(status=STATUS_FAILED, error=str(error))
-    except (KeyboardInterrupt, SystemExit):
-        raise
-    except Exception as error:  # a bug: record it (with its traceback) and go on with the others
-        report.update(status=STATUS_FAILED, error=f"{type(error).__name__}: {error}", traceback=traceback.format_exc())
-    report["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(folder / REPORT_NAME, report)
-    return report
-
-
-def _worker_init() -> None:
-    """One BLAS thread per worker: the pool already uses every core."""
-    for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(variable, "1")
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)   # the parent handles Ctrl-C and cancels the rest
 
 
 # ---------------------------------------------------------------------------------------------
 # A run
+
+
+class BatchTerminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP reached the batch: it stops as on Ctrl-C (summary written, exit 143)."""
+
+
+@contextmanager
+def terminated_as_interrupted() -> Iterator[None]:
+    """While the batch runs, SIGTERM and SIGHUP raise :class:`BatchTerminated` in the main thread,
+    so the jobs in flight are stopped and the summary is written, as on Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    names = [name for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]
+
+    def stop(number, frame) -> None:
+        for name in names:   # once is enough: let the summary be written
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+        raise BatchTerminated(signal.Signals(number).name)
+
+    previous = {name: signal.signal(getattr(signal, name), stop) for name in names}
+    try:
+        yield
+    finally:
+        for name, handler in previous.items():
+            signal.signal(getattr(signal, name), handler)
 
 
 @dataclass
@@ -417,29 +296,131 @@ class BatchResult:
         return sum(1 for row in self.rows if row["status"] == status)
 
 
+class BatchProgress:
+    """Progress on the terminal: a line per finished job with the counts done / running / failed."""
+
+    def __init__(self, total: int):
+        self.total = total
+        self.finished_count = 0
+        self.failed = 0
+        self.running = 0
+
+    @property
+    def done(self) -> int:
+        return self.finished_count - self.failed
+
+    def counts(self) -> str:
+        waiting = self.total - self.finished_count - self.running
+        return (f"{self.done} done, {self.running} running, {self.failed} failed"
+                + (f", {waiting} waiting" if waiting > 0 else ""))
+
+    def finished(self, job: Job, report: dict) -> None:
+        self.finished_count += 1
+        if report["status"] != STATUS_DONE:
+            self.failed += 1
+        figures = report.get("result") or {}
+        detail = (f"mass ×{figures['mass_ratio']:.4f}" if report["status"] == STATUS_DONE and "mass_ratio" in figures
+                  else report.get("error", ""))
+        log.info("[%d/%d] %s: %s (%.0f s) %s · %s", self.finished_count, self.total, job.id, report["status"],
+                 report.get("seconds") or 0.0, detail, self.counts())
+
+
+def check_output_folder(folder: Path) -> None:
+    """Create the output folder and make sure a file can be written in it, before any job runs."""
+    import tempfile
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handle, probe = tempfile.mkstemp(prefix=".allorules-probe.", dir=folder)
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as error:
+        raise AllorulesError(f"cannot write into the output folder {folder} ({error.strerror or error}); "
+                             "choose another 'output:' in the manifest or fix the folder's permissions") from None
+
+
+def remove_leftovers(folder: Path, jobs: Sequence[Job]) -> int:
+    """Delete the temporary files of atomic writes that a killed run left behind (``.NAME.*.tmp``),
+    and the staging folder of jobs run on Dask workers with shared files."""
+    import shutil
+
+    from allorules.runs.cluster import STAGING
+
+    removed = 0
+    if (folder / STAGING).is_dir():
+        shutil.rmtree(folder / STAGING, ignore_errors=True)
+        removed += 1
+    for place in [folder] + [folder / job.id for job in jobs]:
+        if not place.is_dir():
+            continue
+        for item in place.glob(".*.tmp"):
+            try:
+                item.unlink()
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
 def run_batch(
     manifest: str | Path | Manifest,
     *,
     jobs: int | None = None,
     redo: bool = False,
     scale: Callable[[Job, Path], dict] | None = None,
+    scheduler: str | None = None,
+    shared_files: bool | None = None,
 ) -> BatchResult:
     """Run a manifest's unfinished jobs, ``jobs`` at a time (default: every core; 1 runs them in
-    this process, in order), and write the summary. ``redo`` runs finished jobs again. ``scale``
-    replaces :func:`scale_job` (tests; only used in-process). A Ctrl-C writes the summary of
-    what is finished and re-raises."""
+    this process, in order), or on the Dask cluster whose scheduler is ``scheduler`` (an address
+    ``tcp://HOST:PORT`` or a scheduler file; default: the manifest's ``scheduler:``), and write
+    the summary. ``shared_files`` (default: the manifest's): the workers see the inputs and the
+    output folder at the same paths, so jobs carry paths, not bytes. ``redo`` runs finished jobs again. ``scale`` replaces :func:`scale_job` (tests;
+    only used in-process). A Ctrl-C (or SIGTERM under :func:`terminated_as_interrupted`) writes
+    the summary of what is finished and re-raises."""
     manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
+    if scheduler is not None:
+        from allorules.runs.cluster import scheduler_address
+
+        scheduler = scheduler_address(scheduler, Path.cwd())
+    scheduler = scheduler or manifest.scheduler
+    if scheduler and jobs is not None:
+        raise AllorulesError("--jobs is for runs on this machine; on a Dask cluster every worker thread runs one job "
+                             "(start the workers with --nthreads 1 and as many as you want: docs/batch.md)")
     workers = jobs if jobs is not None else (os.cpu_count() or 1)
     if workers < 1:
         raise AllorulesError(f"--jobs must be at least 1, got {workers}")
-    manifest.output.mkdir(parents=True, exist_ok=True)
+    client = None
+    if scheduler:
+        from allorules.runs.cluster import connect
+
+        client = connect(scheduler)   # before any work: no Dask, or no scheduler there, is said at once
+    shared = manifest.shared_files if shared_files is None else shared_files
+    if shared_files and not scheduler:
+        raise AllorulesError("--shared-files goes with --scheduler: it says the Dask workers share this machine's "
+                             "folders")
+    try:
+        return _run_batch(manifest, workers, redo, scale, client, shared)
+    finally:
+        if client is not None:
+            from allorules.runs.cluster import disconnect
+
+            disconnect(client)
+
+
+def _run_batch(manifest: Manifest, workers: int, redo: bool, scale, client, shared_files: bool) -> BatchResult:
+    check_output_folder(manifest.output)
     all_jobs = manifest.jobs()
-    texts = {}
+    removed = remove_leftovers(manifest.output, all_jobs)
+    if removed:
+        log.info("removed %d temporary file%s left by an interrupted run", removed, "" if removed == 1 else "s")
+    rulesets = {}
     for name in manifest.rulesets:
         if name != GLOBAL:
-            from allorules.rules.model import dump_ruleset
+            rulesets[name] = ruleset_with_plugins(name, manifest.plugins)[0]
+    from allorules.rules.model import dump_ruleset
 
-            texts[name] = dump_ruleset(_load_ruleset(name, manifest.plugins)[0])
+    texts = {name: dump_ruleset(ruleset) for name, ruleset in rulesets.items()}
     fingerprints = {job.id: job_fingerprint(job, texts.get(job.ruleset)) for job in all_jobs}
     result = BatchResult(manifest)
     pending = []
@@ -448,67 +429,110 @@ def run_batch(
             result.skipped += 1
         else:
             pending.append(job)
-    log.info("%d jobs: %d finished before, %d to run with %d worker%s", len(all_jobs), result.skipped, len(pending),
-             min(workers, max(1, len(pending))), "" if min(workers, max(1, len(pending))) == 1 else "s")
+    if client is not None:
+        where = f"on the Dask cluster at {client.scheduler.address}"
+    else:
+        count = min(workers, max(1, len(pending)))
+        where = f"with {count} worker{'' if count == 1 else 's'}"
+    log.info("%d jobs: %d finished before, %d to run %s", len(all_jobs), result.skipped, len(pending), where)
 
-    reports: dict[str, dict] = {}
-    done_count = 0
-
-    def finished(job: Job, report: dict) -> None:
-        nonlocal done_count
-        done_count += 1
-        reports[job.id] = report
-        figures = report.get("result") or {}
-        detail = (f"mass ×{figures['mass_ratio']:.4f}" if report["status"] == STATUS_DONE and "mass_ratio" in figures
-                  else report.get("error", ""))
-        log.info("[%d/%d] %s: %s (%.0f s) %s", done_count, len(pending), job.id, report["status"],
-                 report.get("seconds", 0.0), detail)
-
+    progress = BatchProgress(len(pending))
+    stop: BaseException | None = None
     try:
-        if workers == 1 or len(pending) <= 1:
+        if client is not None:
+            from allorules.runs.cluster import run_on_cluster
+
+            run_on_cluster(client, pending, manifest.output, fingerprints, rulesets, progress,
+                           shared_files=shared_files)
+        elif workers == 1 or len(pending) <= 1:
             for job in pending:
-                finished(job, run_job(job, manifest.output, fingerprints[job.id], scale))
+                progress.running = 1
+                report = run_job(job, manifest.output, fingerprints[job.id], scale)
+                progress.running = 0
+                progress.finished(job, report)
         else:
-            _run_pool(pending, manifest.output, fingerprints, min(workers, len(pending)), finished)
-    except KeyboardInterrupt:
-        result.interrupted = True
-        log.warning("interrupted: %d of %d jobs finished in this run; run the same command again to resume",
-                    done_count, len(pending))
-    result.ran = done_count
+            _run_pool(pending, manifest.output, fingerprints, min(workers, len(pending)), progress)
+    except KeyboardInterrupt as interruption:   # Ctrl-C, or SIGTERM (BatchTerminated)
+        stop = interruption
+        why = "terminated" if isinstance(interruption, BatchTerminated) else "interrupted"
+        log.warning("%s: %d of %d jobs finished in this run; run the same command again to resume", why,
+                    progress.finished_count, len(pending))
+    except AllorulesError as error:               # e.g. the Dask scheduler went away
+        stop = error
+    result.interrupted = stop is not None
+    result.ran = progress.finished_count
     result.rows = [_summary_row(job, manifest.output, fingerprints[job.id]) for job in all_jobs]
     result.summary_files = write_summary(manifest, result.rows, interrupted=result.interrupted)
-    if result.interrupted:
-        raise KeyboardInterrupt
+    if stop is not None:
+        raise stop
     return result
 
 
-def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers: int, finished) -> None:
+def _worker_init(parent: int) -> None:
+    """A pool worker: one BLAS thread (the pool already uses every core), Ctrl-C left to the
+    parent, and it ends itself when the parent is gone (see :func:`die_with_parent`)."""
+    for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(variable, "1")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)   # the parent handles Ctrl-C and cancels the rest
+    die_with_parent(parent)
+
+
+def die_with_parent(parent: int, interval: float = 0.5) -> None:
+    """End this process as soon as process ``parent`` is gone, even when it was killed with
+    SIGKILL (which leaves it no chance to stop its workers): on Linux the kernel sends SIGKILL
+    (``PR_SET_PDEATHSIG``); everywhere a watcher thread checks the parent twice a second."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)   # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:   # already gone before the watch began
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(interval)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="allorules-watch-parent", daemon=True).start()
+
+
+def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers: int, progress: BatchProgress) -> None:
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
     # "spawn": fresh interpreters, safe with BLAS/OpenMP threads in this process.
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_init)
+                               initializer=_worker_init, initargs=(os.getpid(),))
     futures = {pool.submit(run_job, job, output, fingerprints[job.id]): job for job in pending}
     try:
         remaining = set(futures)
         while remaining:
+            progress.running = min(workers, len(remaining))
             completed, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            progress.running = min(workers, len(remaining))
             for future in completed:
                 job = futures[future]
                 try:
                     report = future.result()
                 except BrokenProcessPool:
-                    report = {"status": STATUS_FAILED, "error": "the worker process died (out of memory?)"}
+                    report = record_failure(job, output, fingerprints[job.id],
+                                            "the worker process died (out of memory?); run the batch again to retry")
                 except Exception as error:  # the worker could not even start or report
-                    report = {"status": STATUS_FAILED, "error": f"{type(error).__name__}: {error}"}
-                finished(job, report)
+                    report = record_failure(job, output, fingerprints[job.id], f"{type(error).__name__}: {error}")
+                progress.finished(job, report)
     except BaseException:
         processes = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:   # stop the jobs in flight now: they are redone on the next run
             process.terminate()
+        for process in processes:
+            process.join(5)
         raise
     pool.shutdown(wait=True)
 
@@ -551,14 +575,14 @@ def _cell(value: Any) -> str:
 
 def write_summary(manifest: Manifest, rows: list[dict[str, Any]], *, interrupted: bool = False) -> list[Path]:
     """``summary.json``, ``summary.csv`` and ``summary.md`` in the output folder (atomically)."""
-    from allorules.files import atomic_write
+    from allorules.files import atomic_write, write_json
 
     counts = {status: sum(1 for row in rows if row["status"] == status)
               for status in (STATUS_DONE, STATUS_FAILED, STATUS_NOT_RUN)}
     document = {"format": "allorules-batch-summary", "version": 1, "manifest": str(manifest.path),
                 "interrupted": interrupted, "counts": counts, "jobs": rows}
     paths = [manifest.output / "summary.json", manifest.output / "summary.csv", manifest.output / "summary.md"]
-    _write_json(paths[0], document)
+    write_json(paths[0], document)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
     writer.writeheader()
@@ -580,8 +604,17 @@ def write_summary(manifest: Manifest, rows: list[dict[str, Any]], *, interrupted
 
 
 def run_batch_command(arguments) -> int:
-    """``allorules batch``: run, print the table, exit 0 when every job is done, 1 otherwise."""
-    result = run_batch(arguments.manifest, jobs=arguments.jobs, redo=arguments.redo)
+    """``allorules batch``: run, print the table, exit 0 when every job is done, 1 otherwise;
+    SIGTERM or SIGHUP stop it as Ctrl-C does, with the summary written, and exit 143."""
+    try:
+        with terminated_as_interrupted():
+            result = run_batch(arguments.manifest, jobs=arguments.jobs, redo=arguments.redo,
+                               scheduler=getattr(arguments, "scheduler", None),
+                               shared_files=True if getattr(arguments, "shared_files", False) else None)
+    except BatchTerminated as stop:
+        print(f"allorules batch: {stop} received: stopped; the summary is written; run the same command again "
+              "to resume", file=sys.stderr)
+        return 128 + int(getattr(signal, str(stop), signal.SIGTERM))
     done, failed = result.count(STATUS_DONE), result.count(STATUS_FAILED)
     print(f"{done} done ({result.skipped} finished before, {result.ran} run now), {failed} failed")
     for row in result.rows:
