@@ -89,3 +89,15 @@ def test_a_flat_plate_is_refused_as_too_thin() -> None:
     plate = trimesh.creation.box(extents=[100.0, 100.0, 0.2]).subdivide_to_size(2.0)
     with pytest.raises(MeshError, match="too thin"):
         make_working_mesh(plate.vertices, plate.faces, 2000)
+
+
+def test_the_command_lines_help_gives_the_working_sizes():
+    import argparse
+
+    from allorules.cli.arguments import add_working_vertices_argument
+    from allorules.mesh.working import MAX_WORKING_VERTICES, MIN_WORKING_VERTICES, WORKING_VERTICES
+
+    parser = argparse.ArgumentParser()
+    add_working_vertices_argument(parser)
+    text = parser.format_help().replace("\n", " ")
+    assert f"default {WORKING_VERTICES}, from {MIN_WORKING_VERTICES} to {MAX_WORKING_VERTICES}" in " ".join(text.split())

@@ -59,17 +59,12 @@ def add_direction_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_working_vertices_argument(parser: argparse.ArgumentParser) -> None:
-    from allorules.mesh.working import (
-        MAX_WORKING_VERTICES,
-        MIN_WORKING_VERTICES,
-        WORKING_VERTICES,
-    )
-
+    # the numbers are allorules.mesh.working's (not imported here, so that --help stays quick;
+    # tests/test_working_mesh.py checks they agree)
     parser.add_argument("--working-vertices", type=int, metavar="N",
-                        help=f"size of the working mesh the regions, the basis, the measures and the solve use (default "
-                        f"{WORKING_VERTICES}, {MIN_WORKING_VERTICES} to {MAX_WORKING_VERTICES}); a mesh at or below it is "
-                        "used as it is, a larger one is remeshed and the result carried back to every one of its "
-                        "vertices (docs/working-mesh.md)")
+                        help="size of the working mesh the regions, the basis, the measures and the solve use "
+                        "(default 8000, from 2000 to 100000); a mesh at or below it is used as it is, a larger one is "
+                        "remeshed and the result carried back to every one of its vertices (docs/working-mesh.md)")
 
 
 def add_png_argument(parser: argparse.ArgumentParser, what: str, *, old_spelling: str | None = None) -> None:
