@@ -57,30 +57,71 @@ def torso_axis(body: Body) -> np.ndarray:
 
 
 def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,
-                 around_torso: bool = False) -> tuple[list[Loop], np.ndarray]:
-    """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
+                 around_torso: bool | str = False) -> tuple[list[Loop], np.ndarray]:
+    """Closed plane sections of a region's largest part across ``axis`` that go around the trunk
+    (the longest such loop per level).
 
     Levels at the part's area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``).
-    ``around_torso``: cut the loops at those levels from the whole torso piece around the part
-    (:func:`_torso_piece`) rather than from the part alone. Returns the loops and the quantile of
-    each (levels without a closed loop are left out).
+    ``around_torso``: where the loops are cut: ``"part"`` (or False) the region's part alone,
+    ``"torso"`` (or True) the whole torso piece around it (:func:`_torso_piece`), ``"body"`` the
+    whole body. A loop counts only if it winds around the centre of the piece's surface at its
+    level (:func:`_around_trunk`): a small closed loop on a bump of a region that does not reach
+    all round the body is no girth. Returns the loops and the quantile of each (levels without
+    such a loop are left out).
     """
+    piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
     part = region_parts(body, region)[0]
     field = part.vertices @ axis
     if targets is None:
         targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
     levels = area_quantiles(part.vertices, part.faces, field, targets)
-    cut = _torso_piece(body, region) if around_torso else part
+    cut = _section_piece(body, region, piece)
     cut_field = cut.vertices @ axis
     loops, kept = [], []
     for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
         if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
             continue
-        found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
+        centre = _trunk_centre(cut, cut_field, level)
+        found = [loop for loop in isocontour_loops(cut.vertices, cut.faces, cut_field, level)
+                 if _around_trunk(loop, centre, axis)]
         if found:
             loops.append(found[0])
             kept.append(target)
     return loops, np.asarray(kept)
+
+
+def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
+    """Where sections are cut: the region's largest part, the torso piece around it, or the body."""
+    if piece == "part":
+        return region_parts(body, region)[0]
+    if piece == "torso":
+        return _torso_piece(body, region)
+    cache = measured(body).parts
+    if "body" not in cache:
+        cache["body"] = RegionPart("body", body.vertices, body.faces, np.arange(len(body.vertices)),
+                                   float(face_areas(body.vertices, body.faces).sum()))
+    return cache["body"]
+
+
+def _trunk_centre(piece: RegionPart, field: np.ndarray, level: float) -> np.ndarray | None:
+    """Centre of the piece's surface near ``level`` of ``field`` (within 2 % of its range): a point
+    inside the trunk's section there (legs or a neck in the band pull it, not out of the trunk)."""
+    band = np.abs(field - level) <= 0.02 * max(float(np.ptp(field)), 1e-300)
+    if not band.any():
+        return None
+    return piece.vertices[band].mean(axis=0)
+
+
+def _around_trunk(loop: Loop, centre: np.ndarray | None, axis: np.ndarray) -> bool:
+    """Whether a loop across ``axis`` goes around the trunk: it winds once around ``centre``
+    (:func:`_trunk_centre`) in the plane across the axis."""
+    if centre is None:
+        return True
+    offsets = loop.points - centre
+    offsets -= np.outer(offsets @ axis, axis)
+    following = np.roll(offsets, -1, axis=0)
+    angle = np.arctan2(np.cross(offsets, following) @ axis, np.einsum("ij,ij->i", offsets, following))
+    return abs(angle.sum()) > np.pi
 
 
 def _torso_piece(body: Body, region: str) -> RegionPart:
@@ -121,9 +162,12 @@ def chest_girth(body: Body) -> float:
     quantiles of the chest that lie behind that limit, plus the section at the limit: where the
     chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
     with the forelimbs continuously instead of jumping from one quantile to the next. When no
-    section of the chest alone closes there (its boundary with the abdomen zigzags across the
-    large faces of a low-poly mesh), the same levels are cut around the whole torso. On a carried
-    body (:func:`carry_fields`) the quantile levels, and which of the two, are the reference's.
+    section of the chest alone goes around the body there (its boundary with the abdomen zigzags
+    across the large faces of a low-poly mesh, or the neck's region reaches over the withers), the
+    same levels are cut around the whole torso, and failing that around the whole body: a tape goes
+    round the trunk whatever the labels. Only loops around the trunk count (:func:`_around_trunk`).
+    On a carried body (:func:`carry_fields`) the quantile levels, and where they were cut, are the
+    reference's.
     """
     axis = torso_axis(body)
     part = region_parts(body, "chest")[0]
@@ -132,15 +176,18 @@ def chest_girth(body: Body) -> float:
     if limit is not None:
         limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
 
-    def candidates(targets: np.ndarray | None, around_torso: bool) -> tuple[list[Loop], np.ndarray]:
-        loops, kept = _torso_loops(body, "chest", axis, targets, around_torso)
+    def candidates(targets: np.ndarray | None, around_torso: bool | str) -> tuple[list[Loop], np.ndarray]:
+        piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
+        loops, kept = _torso_loops(body, "chest", axis, targets, piece)
         if limit is not None:
             # every candidate behind the limit, and the section at the limit itself: so a candidate
             # crossing the limit leaves or joins where it equals that last section (no jump)
             loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
             if field.min() < limit < field.max():
-                cut = _torso_piece(body, "chest") if around_torso else part
-                loops += isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+                cut = _section_piece(body, "chest", piece)
+                centre = _trunk_centre(cut, cut.vertices @ axis, limit)
+                loops += [loop for loop in isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)
+                          if _around_trunk(loop, centre, axis)][:1]
         return loops, kept
 
     cache = measured(body)
@@ -148,15 +195,15 @@ def chest_girth(body: Body) -> float:
     if carried is not None:
         loops, _ = candidates(*carried)
     else:
-        for around_torso in (False, True):
-            loops, kept = candidates(None, around_torso)
+        for piece in ("part", "torso", "body"):
+            loops, kept = candidates(None, piece)
             if loops:
-                cache.chest_candidates = (kept, around_torso)
+                cache.chest_candidates = (kept, piece)
                 break
     if not loops:
         raise MeasurementError(
-            "no closed section of the chest behind the forelimbs: the chest region does not go all "
-            "around the body there; check the segmentation"
+            "no closed section around the chest behind the forelimbs, not even of the whole body: the mesh "
+            "may have holes there, or the forelimbs' labels reach along the whole trunk; check the segmentation"
         )
     return max(loop.girth for loop in loops)
 
@@ -175,7 +222,7 @@ def region_girth(body: Body, region: str) -> float:
         girth = chest_girth(body)
     elif region == "abdomen":
         axis = torso_axis(body)
-        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso=True)[0]
+        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso="torso")[0]
         if not loops:
             raise MeasurementError("no closed section across the abdomen; check the segmentation")
         girth = max(loop.girth for loop in loops)
