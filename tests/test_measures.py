@@ -802,6 +802,11 @@ def test_heart_girth_when_the_chest_is_not_a_ring():
     girth = chest_girth(strip)
     assert measured(strip).chest_candidates[1] == "body"
     assert girth == pytest.approx(animal.truth.chest_girth, rel=0.05)
+    # an optimiser's trial bodies carry those sections along: twice the size, twice the girth
+    from allorules.measure.parts import carry_fields
+
+    trial = carry_fields(strip, strip.with_vertices(2.0 * strip.vertices))
+    assert chest_girth(trial) == pytest.approx(2.0 * girth, rel=1e-6)
 
 
 @pytest.mark.shared_meshes

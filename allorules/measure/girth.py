@@ -97,10 +97,10 @@ def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
     if piece == "torso":
         return _torso_piece(body, region)
     cache = measured(body).parts
-    if "body" not in cache:
-        cache["body"] = RegionPart("body", body.vertices, body.faces, np.arange(len(body.vertices)),
-                                   float(face_areas(body.vertices, body.faces).sum()))
-    return cache["body"]
+    if "body" not in cache:   # a list of parts, as every entry (carried to a moved body as such)
+        cache["body"] = [RegionPart("body", body.vertices, body.faces, np.arange(len(body.vertices)),
+                                    float(face_areas(body.vertices, body.faces).sum()))]
+    return cache["body"][0]
 
 
 def _trunk_centre(piece: RegionPart, field: np.ndarray, level: float) -> np.ndarray | None:

@@ -437,7 +437,8 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     girdles. Head and neck: the section loops of :func:`_neck_cuts`, followed from ``head_tip``,
     cut them off the front (each the part connected to the head tip beyond its loop, see
     :func:`_beyond_loop`); a cut with more than LEAK_SHARE of its area behind the middle plane
-    leaks into the body and is not used. The tail
+    leaks into the body and is not used. Where that gives no head or no neck, the rings from the
+    head tip decide them (:func:`_ring_head_and_neck`). The tail
     (behind the hind legs) stays with the abdomen here; :func:`_cut_appendages` takes it out.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
@@ -448,14 +449,48 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     labels[in_rest & (along >= middle)] = CHEST
     labels[in_rest & (along < middle)] = ABDOMEN
     head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, head_tip, np.flatnonzero(labels == FORELIMBS))
-    if head_cut is None:
+    if head_cut is not None:
+        pairs = _face_pairs(faces)
+        for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
+            beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, head_tip)
+            if beyond is None or mass[beyond & (along < middle)].sum() > LEAK_SHARE * mass[beyond].sum():
+                continue   # the loop does not cut the front off (or leaks into the body): leave it
+            labels[beyond] = region
+    if not ((labels == HEAD).any() and (labels == NECK).any()):
+        _ring_head_and_neck(vertices, faces, graph, mass, labels, in_rest & ends.head.region, head_tip, along, middle)
+
+
+def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, along, middle) -> None:
+    """Head and neck when the skeleton's bend gave none (a head held low, a neck the tube-following
+    loses): the rings of geodesic distance from the head tip over the front end (``front``, beyond
+    the fore legs' plane). Their length grows over the head and narrows at the throat: the head is
+    the tip's part within the narrowest ring past the head's widest (in the first 60 % of the way;
+    without a narrowing, 40 % of the way), the neck the rest of the front end."""
+    if not front[head_tip]:
         return
-    pairs = _face_pairs(faces)
-    for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
-        beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, head_tip)
-        if beyond is None or mass[beyond & (along < middle)].sum() > LEAK_SHARE * mass[beyond].sum():
-            continue   # the loop does not cut the front off (or leaks into the body): leave it
-        labels[beyond] = region
+    index = np.flatnonzero(front)
+    local = np.full(len(vertices), -1)
+    local[index] = np.arange(len(index))
+    field = np.full(len(vertices), np.inf)
+    field[index] = dijkstra(graph[index][:, index], indices=local[head_tip])
+    reach = float(field[np.isfinite(field)].max())
+    levels = np.linspace(0.0, reach, PROFILE_LEVELS + 1)[1:]
+    front_faces = faces[front[faces].all(axis=1)]
+    perimeter, _ = isocontour_profile(vertices, front_faces, field, levels)
+    perimeter = _moving_average(perimeter, 5)
+    first = max(int(0.6 * len(levels)), 2)
+    widest = int(np.argmax(perimeter[:first]))
+    throat = widest + int(np.argmin(perimeter[widest:first]))
+    if throat in (widest, first - 1):   # no narrowing after the head's widest ring
+        throat = int(0.4 * len(levels))
+    inside = front & (field < levels[throat])
+    parts = vertex_components(graph, inside)
+    head = inside & (parts == parts[head_tip])
+    neck = front & ~head
+    if not neck.any() or mass[front & (along < middle)].sum() > LEAK_SHARE * mass[front].sum():
+        return
+    labels[head] = HEAD
+    labels[neck] = NECK
 
 
 def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, distance) -> None:
