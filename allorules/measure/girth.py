@@ -57,17 +57,18 @@ def torso_axis(body: Body) -> np.ndarray:
 
 
 def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,
-                 around_torso: bool | str = False) -> tuple[list[Loop], np.ndarray]:
+                 around_torso: bool | str = False, check: bool = True) -> tuple[list[Loop], np.ndarray]:
     """Closed plane sections of a region's largest part across ``axis`` that go around the trunk
-    (the longest such loop per level).
+    (one per level).
 
     Levels at the part's area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``).
     ``around_torso``: where the loops are cut: ``"part"`` (or False) the region's part alone,
     ``"torso"`` (or True) the whole torso piece around it (:func:`_torso_piece`), ``"body"`` the
-    whole body. A loop counts only if it winds around the centre of the piece's surface at its
-    level (:func:`_around_trunk`): a small closed loop on a bump of a region that does not reach
-    all round the body is no girth. Returns the loops and the quantile of each (levels without
-    such a loop are left out).
+    whole body. With ``check``, a level counts only where the piece's longest loop is the trunk's
+    section (:func:`_trunk_section`): a closed loop of a region that does not reach all round the
+    body is no girth. Without (an optimiser's trial bodies, carried from a checked reference), the
+    piece's longest loop. Returns the loops and the quantile of each (levels without such a loop
+    are left out).
     """
     piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
     part = region_parts(body, region)[0]
@@ -81,10 +82,8 @@ def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray 
     for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
         if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
             continue
-        centre = _trunk_centre(cut, cut_field, level)
-        found = [loop for loop in isocontour_loops(cut.vertices, cut.faces, cut_field, level)
-                 if _around_trunk(loop, centre, axis)]
-        if found:
+        found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
+        if found and (not check or _trunk_section(body, found[0], axis, level)):
             loops.append(found[0])
             kept.append(target)
     return loops, np.asarray(kept)
@@ -103,25 +102,17 @@ def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
     return cache["body"][0]
 
 
-def _trunk_centre(piece: RegionPart, field: np.ndarray, level: float) -> np.ndarray | None:
-    """Centre of the piece's surface near ``level`` of ``field`` (within 2 % of its range): a point
-    inside the trunk's section there (legs or a neck in the band pull it, not out of the trunk)."""
-    band = np.abs(field - level) <= 0.02 * max(float(np.ptp(field)), 1e-300)
-    if not band.any():
-        return None
-    return piece.vertices[band].mean(axis=0)
+TRUNK_SECTION_MATCH = 0.05   # a region's loop is the trunk's section when its girth is within this of it
 
 
-def _around_trunk(loop: Loop, centre: np.ndarray | None, axis: np.ndarray) -> bool:
-    """Whether a loop across ``axis`` goes around the trunk: it winds once around ``centre``
-    (:func:`_trunk_centre`) in the plane across the axis."""
-    if centre is None:
+def _trunk_section(body: Body, loop: Loop, axis: np.ndarray, level: float) -> bool:
+    """Whether ``loop`` (across ``axis`` at ``level``) is the trunk's section there: as long, within
+    TRUNK_SECTION_MATCH, as the whole body's longest loop at that level (a leg's or the neck's
+    are shorter and apart from it). Where the body has no closed section (holes), it is."""
+    sections = isocontour_loops(body.vertices, body.faces, body.vertices @ axis, level)
+    if not sections:
         return True
-    offsets = loop.points - centre
-    offsets -= np.outer(offsets @ axis, axis)
-    following = np.roll(offsets, -1, axis=0)
-    angle = np.arctan2(np.cross(offsets, following) @ axis, np.einsum("ij,ij->i", offsets, following))
-    return abs(angle.sum()) > np.pi
+    return abs(loop.girth - sections[0].girth) <= TRUNK_SECTION_MATCH * sections[0].girth
 
 
 def _torso_piece(body: Body, region: str) -> RegionPart:
@@ -165,9 +156,9 @@ def chest_girth(body: Body) -> float:
     section of the chest alone goes around the body there (its boundary with the abdomen zigzags
     across the large faces of a low-poly mesh, or the neck's region reaches over the withers), the
     same levels are cut around the whole torso, and failing that around the whole body: a tape goes
-    round the trunk whatever the labels. Only loops around the trunk count (:func:`_around_trunk`).
+    round the trunk whatever the labels. Only the trunk's own section counts (:func:`_trunk_section`).
     On a carried body (:func:`carry_fields`) the quantile levels, and where they were cut, are the
-    reference's.
+    reference's (and the trunk check is not repeated on them).
     """
     axis = torso_axis(body)
     part = region_parts(body, "chest")[0]
@@ -176,24 +167,23 @@ def chest_girth(body: Body) -> float:
     if limit is not None:
         limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
 
-    def candidates(targets: np.ndarray | None, around_torso: bool | str) -> tuple[list[Loop], np.ndarray]:
+    def candidates(targets: np.ndarray | None, around_torso: bool | str, check: bool = True) -> tuple[list[Loop], np.ndarray]:
         piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
-        loops, kept = _torso_loops(body, "chest", axis, targets, piece)
+        loops, kept = _torso_loops(body, "chest", axis, targets, piece, check)
         if limit is not None:
             # every candidate behind the limit, and the section at the limit itself: so a candidate
             # crossing the limit leaves or joins where it equals that last section (no jump)
             loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
             if field.min() < limit < field.max():
                 cut = _section_piece(body, "chest", piece)
-                centre = _trunk_centre(cut, cut.vertices @ axis, limit)
-                loops += [loop for loop in isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)
-                          if _around_trunk(loop, centre, axis)][:1]
+                at_limit = isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+                loops += [loop for loop in at_limit if not check or _trunk_section(body, loop, axis, limit)]
         return loops, kept
 
     cache = measured(body)
     carried = cache.carried.chest_candidates if cache.carried else None
     if carried is not None:
-        loops, _ = candidates(*carried)
+        loops, _ = candidates(*carried, check=False)
     else:
         for piece in ("part", "torso", "body"):
             loops, kept = candidates(None, piece)
