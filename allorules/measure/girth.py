@@ -102,6 +102,7 @@ def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
     return cache["body"][0]
 
 
+MIN_TRUNK_LEVELS = 4        # a chest or torso piece measures heart girth only where it gives the trunk's section at this many levels
 TRUNK_SECTION_MATCH = 0.05   # a region's loop is the trunk's section when its girth is within this of it
 
 
@@ -156,7 +157,8 @@ def chest_girth(body: Body) -> float:
     section of the chest alone goes around the body there (its boundary with the abdomen zigzags
     across the large faces of a low-poly mesh, or the neck's region reaches over the withers), the
     same levels are cut around the whole torso, and failing that around the whole body: a tape goes
-    round the trunk whatever the labels. Only the trunk's own section counts (:func:`_trunk_section`).
+    round the trunk whatever the labels. Only the trunk's own section counts (:func:`_trunk_section`),
+    and a piece is used only where it gives it at MIN_TRUNK_LEVELS levels or more.
     On a carried body (:func:`carry_fields`) the quantile levels, and where they were cut, are the
     reference's (and the trunk check is not repeated on them).
     """
@@ -187,7 +189,9 @@ def chest_girth(body: Body) -> float:
     else:
         for piece in ("part", "torso", "body"):
             loops, kept = candidates(None, piece)
-            if loops:
+            # a piece whose sections are the trunk's at a few levels only is a strip or a patch:
+            # which levels pass would change with the smallest deformation (from step to step)
+            if loops and (piece == "body" or len(kept) >= MIN_TRUNK_LEVELS):
                 cache.chest_candidates = (kept, piece)
                 break
     if not loops:
