@@ -26,6 +26,7 @@ from allorules.plugins.registry import registry_for
 from allorules.rules.resolve import load_ruleset
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.segment.labeller import label_quadruped
+from allorules.segment.regions import fold_regions
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 PICTURE = Path(__file__).resolve().parents[1] / "docs" / "images" / "real_animals.png"
@@ -49,7 +50,7 @@ def main() -> None:
     for name in ANIMALS:
         prepared = prepare_mesh(MESHES / f"{name}.obj")
         try:
-            body = label_quadruped(Body(prepared.vertices, prepared.faces))
+            body = fold_regions(label_quadruped(Body(prepared.vertices, prepared.faces)))   # the six regions
         except AllorulesError as error:
             print(f"| {name} | {len(prepared.vertices):,} | – | refused: {error} |")
             continue

@@ -92,10 +92,11 @@ def main() -> None:
     if not arguments.skip_real and (MESHES / "horse.obj").exists():
         from allorules.mesh.repair import prepare_mesh
         from allorules.segment.labeller import label_quadruped
+        from allorules.segment.regions import fold_regions
 
         prepared = prepare_mesh(MESHES / "horse.obj")
         started = time.perf_counter()
-        body = label_quadruped(Body(prepared.vertices, prepared.faces))
+        body = fold_regions(label_quadruped(Body(prepared.vertices, prepared.faces)))   # the six regions
         print(f"real horse labelled in {time.perf_counter() - started:.1f} s")
         run("real horse (shared/meshes/horse.obj)", body, arguments.modes, arguments.mass_ratio,
             arguments.basis_every, arguments.cold_bases)

@@ -781,8 +781,32 @@ def test_heart_girth_is_measured_around_the_torso_when_the_chest_labels_are_ragg
     labels[band] = np.where(np.random.default_rng(0).random(band.sum()) < 0.5, chest, abdomen)
     ragged = Body(body.vertices, body.faces, labels, body.region_names, body.frame)
     assert chest_girth(ragged) == pytest.approx(chest_girth(body), rel=1e-3)
-    assert measured(ragged).chest_candidates[1]                  # cut around the torso
-    assert not measured(body).chest_candidates[1]                # the clean chest: its own sections
+    assert measured(ragged).chest_candidates[1] == "torso"       # cut around the torso
+    assert measured(body).chest_candidates[1] == "part"          # the clean chest: its own sections
+
+
+def test_heart_girth_when_the_chest_is_not_a_ring():
+    """A neck region reaching over the withers and down the shoulders (a bull with its head lowered,
+    no visible neck) leaves the chest a strip under the trunk: no section of the chest, nor of
+    the torso, goes around the body. The tape still goes round the trunk: the whole body's
+    section at the chest's levels, the same girth as the clean chest's."""
+    from allorules.measure.girth import chest_girth
+
+    animal = generate_quadruped("horse", vertices=2000)
+    body = animal.body()
+    chest, neck = body.region_names.index("chest"), body.region_names.index("neck")
+    labels = body.labels.copy()
+    upper = (labels == chest) & (body.vertices[:, 1] > np.median(body.vertices[labels == chest, 1]))
+    labels[upper] = neck
+    strip = Body(body.vertices, body.faces, labels, body.region_names, body.frame)
+    girth = chest_girth(strip)
+    assert measured(strip).chest_candidates[1] == "body"
+    assert girth == pytest.approx(animal.truth.chest_girth, rel=0.05)
+    # an optimiser's trial bodies carry those sections along: twice the size, twice the girth
+    from allorules.measure.parts import carry_fields
+
+    trial = carry_fields(strip, strip.with_vertices(2.0 * strip.vertices))
+    assert chest_girth(trial) == pytest.approx(2.0 * girth, rel=1e-6)
 
 
 @pytest.mark.shared_meshes

@@ -95,7 +95,11 @@ def test_the_command_lines_help_gives_the_working_sizes():
     import argparse
 
     from allorules.cli.arguments import add_working_vertices_argument
-    from allorules.mesh.working import MAX_WORKING_VERTICES, MIN_WORKING_VERTICES, WORKING_VERTICES
+    from allorules.mesh.working import (
+        MAX_WORKING_VERTICES,
+        MIN_WORKING_VERTICES,
+        WORKING_VERTICES,
+    )
 
     parser = argparse.ArgumentParser()
     add_working_vertices_argument(parser)

@@ -34,13 +34,13 @@ from scipy.sparse.csgraph import connected_components
 
 from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import vertex_graph
+from allorules.segment.body_plan import average_geodesic_distance, persistent_maxima
 
 MAX_AREA_SHARE = 0.03       # a small feature covers at most this share of the body's surface
 MIN_PERSISTENCE = 0.02      # of the AGD range: smaller protrusions are surface noise
 MAX_PERSISTENCE = 0.35      # of the AGD range: longer protrusions are limbs, tails, necks
 END_DEPTH = 0.08            # of the AGD range: the end of a limb or tail (a hoof, the tail tip)
 MIN_VERTICES = 8            # fewer vertices carry no measurable shape
-AGD_SOURCES = 24            # farthest-point sources of the average geodesic distance
 
 __all__ = [
     "SmallFeature",
@@ -80,12 +80,6 @@ class SmallFeature:
                 "persistence": float(self.persistence)}
 
 
-def _average_geodesic_distance(graph: sparse.csr_matrix, mass: np.ndarray, sources: int = AGD_SOURCES) -> np.ndarray:
-    from allorules.segment.labeller import average_geodesic_distance
-
-    return average_geodesic_distance(graph, mass, sources)
-
-
 def _super_level_component(values: np.ndarray, graph: sparse.csr_matrix, tip: int, level: float) -> np.ndarray:
     """Vertices of the connected part of {values > level} that holds ``tip``."""
     inside = np.flatnonzero(values > level)
@@ -123,10 +117,8 @@ def find_small_features(
 
     index = np.flatnonzero(parts == main)
     if len(index) > 3 * MIN_VERTICES:
-        from allorules.segment.labeller import persistent_maxima
-
         sub_graph = graph[index][:, index].tocsr()
-        agd = _average_geodesic_distance(sub_graph, mass[index])
+        agd = average_geodesic_distance(sub_graph, mass[index])
         span = float(agd.max() - agd.min())
         if span > 0:
             tips, persistence = persistent_maxima(agd, sub_graph)

@@ -56,30 +56,63 @@ def torso_axis(body: Body) -> np.ndarray:
 
 
 def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,
-                 around_torso: bool = False) -> tuple[list[Loop], np.ndarray]:
-    """Closed plane sections of a region's largest part across ``axis`` (largest loop per level).
+                 around_torso: bool | str = False, check: bool = True) -> tuple[list[Loop], np.ndarray]:
+    """Closed plane sections of a region's largest part across ``axis`` that go around the trunk
+    (one per level).
 
     Levels at the part's area quantiles ``targets`` (default: ``(k + ½)/SECTION_COUNT``).
-    ``around_torso``: cut the loops at those levels from the whole torso piece around the part
-    (:func:`_torso_piece`) rather than from the part alone. Returns the loops and the quantile of
-    each (levels without a closed loop are left out).
+    ``around_torso``: where the loops are cut: ``"part"`` (or False) the region's part alone,
+    ``"torso"`` (or True) the whole torso piece around it (:func:`_torso_piece`), ``"body"`` the
+    whole body. With ``check``, a level counts only where the piece's longest loop is the trunk's
+    section (:func:`_trunk_section`): a closed loop of a region that does not reach all round the
+    body is no girth. Without (an optimiser's trial bodies, carried from a checked reference), the
+    piece's longest loop. Returns the loops and the quantile of each (levels without such a loop
+    are left out).
     """
+    piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
     part = region_parts(body, region)[0]
     field = part.vertices @ axis
     if targets is None:
         targets = (np.arange(SECTION_COUNT) + 0.5) / SECTION_COUNT
     levels = area_quantiles(part.vertices, part.faces, field, targets)
-    cut = _torso_piece(body, region) if around_torso else part
+    cut = _section_piece(body, region, piece)
     cut_field = cut.vertices @ axis
     loops, kept = [], []
     for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
         if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
             continue
         found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
-        if found:
+        if found and (not check or _trunk_section(body, found[0], axis, level)):
             loops.append(found[0])
             kept.append(target)
     return loops, np.asarray(kept)
+
+
+def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
+    """Where sections are cut: the region's largest part, the torso piece around it, or the body."""
+    if piece == "part":
+        return region_parts(body, region)[0]
+    if piece == "torso":
+        return _torso_piece(body, region)
+    cache = measured(body).parts
+    if "body" not in cache:   # a list of parts, as every entry (carried to a moved body as such)
+        cache["body"] = [RegionPart("body", body.vertices, body.faces, np.arange(len(body.vertices)),
+                                    float(face_areas(body.vertices, body.faces).sum()))]
+    return cache["body"][0]
+
+
+MIN_TRUNK_LEVELS = 4        # a chest or torso piece measures heart girth only where it gives the trunk's section at this many levels
+TRUNK_SECTION_MATCH = 0.05   # a region's loop is the trunk's section when its girth is within this of it
+
+
+def _trunk_section(body: Body, loop: Loop, axis: np.ndarray, level: float) -> bool:
+    """Whether ``loop`` (across ``axis`` at ``level``) is the trunk's section there: as long, within
+    TRUNK_SECTION_MATCH, as the whole body's longest loop at that level (a leg's or the neck's
+    are shorter and apart from it). Where the body has no closed section (holes), it is."""
+    sections = isocontour_loops(body.vertices, body.faces, body.vertices @ axis, level)
+    if not sections:
+        return True
+    return abs(loop.girth - sections[0].girth) <= TRUNK_SECTION_MATCH * sections[0].girth
 
 
 def _torso_piece(body: Body, region: str) -> RegionPart:
@@ -120,9 +153,13 @@ def chest_girth(body: Body) -> float:
     quantiles of the chest that lie behind that limit, plus the section at the limit: where the
     chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
     with the forelimbs continuously instead of jumping from one quantile to the next. When no
-    section of the chest alone closes there (its boundary with the abdomen zigzags across the
-    large faces of a low-poly mesh), the same levels are cut around the whole torso. On a carried
-    body (:func:`carry_fields`) the quantile levels, and which of the two, are the reference's.
+    section of the chest alone goes around the body there (its boundary with the abdomen zigzags
+    across the large faces of a low-poly mesh, or the neck's region reaches over the withers), the
+    same levels are cut around the whole torso, and failing that around the whole body: a tape goes
+    round the trunk whatever the labels. Only the trunk's own section counts (:func:`_trunk_section`),
+    and a piece is used only where it gives it at MIN_TRUNK_LEVELS levels or more.
+    On a carried body (:func:`carry_fields`) the quantile levels, and where they were cut, are the
+    reference's (and the trunk check is not repeated on them).
     """
     axis = torso_axis(body)
     part = region_parts(body, "chest")[0]
@@ -131,31 +168,35 @@ def chest_girth(body: Body) -> float:
     if limit is not None:
         limit -= CHEST_LIMIT_MARGIN * (field.max() - field.min())
 
-    def candidates(targets: np.ndarray | None, around_torso: bool) -> tuple[list[Loop], np.ndarray]:
-        loops, kept = _torso_loops(body, "chest", axis, targets, around_torso)
+    def candidates(targets: np.ndarray | None, around_torso: bool | str, check: bool = True) -> tuple[list[Loop], np.ndarray]:
+        piece = {False: "part", True: "torso"}.get(around_torso, around_torso)
+        loops, kept = _torso_loops(body, "chest", axis, targets, piece, check)
         if limit is not None:
             # every candidate behind the limit, and the section at the limit itself: so a candidate
             # crossing the limit leaves or joins where it equals that last section (no jump)
             loops = [loop for loop in loops if (loop.points @ axis).max() <= limit]
             if field.min() < limit < field.max():
-                cut = _torso_piece(body, "chest") if around_torso else part
-                loops += isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+                cut = _section_piece(body, "chest", piece)
+                at_limit = isocontour_loops(cut.vertices, cut.faces, cut.vertices @ axis, limit)[:1]
+                loops += [loop for loop in at_limit if not check or _trunk_section(body, loop, axis, limit)]
         return loops, kept
 
     cache = measured(body)
     carried = cache.carried.chest_candidates if cache.carried else None
     if carried is not None:
-        loops, _ = candidates(*carried)
+        loops, _ = candidates(*carried, check=False)
     else:
-        for around_torso in (False, True):
-            loops, kept = candidates(None, around_torso)
-            if loops:
-                cache.chest_candidates = (kept, around_torso)
+        for piece in ("part", "torso", "body"):
+            loops, kept = candidates(None, piece)
+            # a piece whose sections are the trunk's at a few levels only is a strip or a patch:
+            # which levels pass would change with the smallest deformation (from step to step)
+            if loops and (piece == "body" or len(kept) >= MIN_TRUNK_LEVELS):
+                cache.chest_candidates = (kept, piece)
                 break
     if not loops:
         raise MeasurementError(
-            "no closed section of the chest behind the forelimbs: the chest region does not go all "
-            "around the body there; check the segmentation"
+            "no closed section around the chest behind the forelimbs, not even of the whole body: the mesh "
+            "may have holes there, or the forelimbs' labels reach along the whole trunk; check the segmentation"
         )
     return max(loop.girth for loop in loops)
 
@@ -174,7 +215,7 @@ def region_girth(body: Body, region: str) -> float:
         girth = chest_girth(body)
     elif region == "abdomen":
         axis = torso_axis(body)
-        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso=True)[0]
+        loops = _torso_loops(body, region, axis)[0] or _torso_loops(body, region, axis, around_torso="torso")[0]
         if not loops:
             raise MeasurementError("no closed section across the abdomen; check the segmentation")
         girth = max(loop.girth for loop in loops)

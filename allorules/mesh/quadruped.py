@@ -965,6 +965,7 @@ class GeneratedQuadruped:
     truth: QuadrupedTruth
     preset: str = "custom"
     region_names: tuple[str, ...] = REGION_NAMES
+    pose: "object | None" = None        # the quadruped_poses.Pose the vertices were moved into (None: standing)
 
     def body(self) -> Body:
         """The animal as a :class:`~allorules.body.Body` in the canonical frame (+Y up, +X forward)."""
@@ -986,13 +987,20 @@ def _spacing_for(area: float, vertices: int) -> float:
     return math.sqrt(1.5 * area / vertices)
 
 
-def generate_quadruped(preset: str = "horse", vertices: int = 8000, *, seed: int = 0,
+def generate_quadruped(preset: str = "horse", vertices: int = 8000, *, seed: int = 0, pose=None,
                        **overrides: float) -> GeneratedQuadruped:
     """Generate a closed, smooth quadruped of about ``vertices`` vertices, with labels and truth.
 
     ``preset`` names an entry of :data:`PRESETS`; ``overrides`` replace single parameters
     (see :class:`QuadrupedParameters`); ``seed`` ≠ 0 varies every length by up to ±8 %
     (deterministically). The result is watertight, consistently wound, outward, one piece.
+
+    ``pose`` (a name of :data:`allorules.mesh.quadruped_poses.POSES` or a ``Pose``) moves the
+    standing animal's vertices like a rig (legs swung and bent, neck, head, tail turned or curled);
+    faces and labels stay those of the standing animal, which are the truth in every pose. The
+    truth's leg lengths, radii and region volumes are the standing animal's (the legs below their
+    saddles move rigidly unless a knee bends); ``body_volume`` and ``height`` are measured on the
+    posed mesh.
     """
     if preset not in PRESETS:
         raise QuadrupedParameterError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
@@ -1030,7 +1038,19 @@ def generate_quadruped(preset: str = "horse", vertices: int = 8000, *, seed: int
     labels = label_points(layout, mesh_vertices)
     legs = free_legs(mesh_vertices, mesh_faces, labels, layout)
     truth = _measure_truth(layout, mesh_vertices, mesh_faces, labels, legs)
-    return GeneratedQuadruped(mesh_vertices, mesh_faces, labels, parameters, truth, preset)
+    if pose is None:
+        return GeneratedQuadruped(mesh_vertices, mesh_faces, labels, parameters, truth, preset)
+    from allorules.mesh.quadruped_poses import POSES, pose_vertices
+
+    if isinstance(pose, str):
+        if pose not in POSES:
+            raise QuadrupedParameterError(f"unknown pose {pose!r}; choose one of {', '.join(POSES)}")
+        pose = POSES[pose]
+    posed = pose_vertices(layout, mesh_vertices, pose, labels, REGION_NAMES)
+    truth = dataclasses.replace(truth, body_volume=float(trimesh.Trimesh(posed, mesh_faces, process=False).volume),
+                                height=float(np.ptp(posed[:, 1])))
+    # (the private fields are copied: leg radius profiles are measured on the standing legs)
+    return GeneratedQuadruped(posed, mesh_faces, labels, parameters, truth, preset, pose=pose)
 
 
 def _flip_free(vertices, faces, incidence, a, b, middle) -> np.ndarray:

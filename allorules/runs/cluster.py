@@ -50,7 +50,14 @@ from typing import Any, Sequence
 
 from allorules import __version__
 from allorules.errors import AllorulesError
-from allorules.runs.jobs import GLOBAL, REPORT_NAME, STATUS_FAILED, Job, record_failure, run_job
+from allorules.runs.jobs import (
+    GLOBAL,
+    REPORT_NAME,
+    STATUS_FAILED,
+    Job,
+    record_failure,
+    run_job,
+)
 
 log = logging.getLogger("allorules")
 

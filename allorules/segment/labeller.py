@@ -28,41 +28,26 @@ so the labels do not change under rotation, mirroring or uniform scaling.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-from allorules.body import UNLABELLED, Body, Frame
+from allorules.body import UNLABELLED, Body, Frame, Labelling
 from allorules.errors import SegmentationError
 from allorules.mesh.geometry import vertex_areas
-from allorules.mesh.topology import (
-    corner_edges,
-    directed_edges,
-    vertex_components,
-    vertex_graph,
-)
+from allorules.mesh.topology import directed_edges, vertex_components, vertex_graph
+from allorules.segment import body_plan
+from allorules.segment.body_plan import SUPPORT_TOLERANCE, _face_pairs, _find
 from allorules.segment.regions import QUADRUPED_REGIONS
 
 REGIONS = QUADRUPED_REGIONS
 HEAD, NECK, CHEST, ABDOMEN, FORELIMBS, HINDLIMBS = range(6)
+# Regions found when the mesh has them, after the six (segmentation.NEIGHBOUR_REGION folds them).
+APPENDAGES = ("tail", "ears", "horns", "trunk")
+ALL_REGIONS = REGIONS + APPENDAGES
 
-AGD_SOURCES = 24            # farthest-point sources for the average geodesic distance
-CANDIDATE_TIPS = 12         # most persistent extremities considered as feet
-MIN_PERSISTENCE = 0.03      # of the AGD range: smaller maxima are surface noise
-PLANARITY_TOLERANCE = 0.12  # foot heights off their plane, relative to the feet's spread
-SUPPORT_TOLERANCE = 0.06    # how far (relative to body height) the mesh may dip below the foot plane
-SUPPORT_RESOLUTION = 0.01  # misfits of the ground plane closer than this (of the feet's spread) tie
 SUBSTANTIAL_PART = 0.01     # of the surface area: smaller sublevel parts are bumps, not the body
-
-
-@dataclass
-class Extremities:
-    """Tips of protrusions: vertex ids and their persistence (in units of √area)."""
-
-    vertices: np.ndarray
-    persistence: np.ndarray
 
 
 def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True) -> Body:
@@ -99,7 +84,7 @@ def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True)
     local = np.full(len(vertices), -1, dtype=np.int64)
     local[index] = np.arange(len(index))
     sub_faces = local[faces[main[faces].all(axis=1)]]
-    labels_main, frame = _label_connected(sub_vertices, sub_faces, sub_graph, sub_mass, up, forward)
+    labels_main, frame, plan = _label_connected(sub_vertices, sub_faces, sub_graph, sub_mass, up, forward)
     labels = np.full(len(vertices), UNLABELLED, dtype=np.int64)
     labels[index] = labels_main
     if not main.all():  # small separate parts (eyes, teeth) take the label of the nearest body vertex
@@ -109,12 +94,21 @@ def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True)
         labels[~main] = labels_main[nearest]
     # Never hand on a body with a region missing: every later measurement would fail on it, or worse.
     missing = [name for index_of, name in enumerate(REGIONS) if not np.any(labels == index_of)]
+    # The six always, then the appendages found (tail, ears, horns, trunk), in that order.
+    found = [index_of for index_of in range(len(REGIONS), len(ALL_REGIONS)) if np.any(labels == index_of)]
+    names = REGIONS + tuple(ALL_REGIONS[index_of] for index_of in found)
+    renumber = np.arange(len(ALL_REGIONS) + 1) - 1   # slot 0: unlabelled (−1)
+    for new, old in enumerate(found, start=len(REGIONS)):
+        renumber[old + 1] = new
+    labels = renumber[labels + 1]
     if missing and complete:
         raise SegmentationError(
             f"found no {' and no '.join(missing)} on this mesh; give the regions with --segmentation FILE "
             "(allorules segment --patches 24 and a merge file), or try --up/--forward"
         )
-    return Body(vertices, faces, labels, REGIONS, frame)
+    notes = tuple(f"{name} {value:+.2f}" for name, value in plan.cues.items())
+    labelling = Labelling("segmenter auto-quadruped", dict(plan.confidence), ("head-tail cues: " + ", ".join(notes),))
+    return Body(vertices, faces, labels, names, frame, labelling)
 
 
 def _unit_or_none(direction, name: str) -> np.ndarray | None:
@@ -127,250 +121,284 @@ def _unit_or_none(direction, name: str) -> np.ndarray | None:
 
 
 def _label_connected(vertices, faces, graph, mass, up, forward):
-    extremities = find_extremities(vertices, graph, mass)
-    feet, up = _find_feet(vertices, mass, extremities, up)
-    height = vertices @ up
-    legs = _cut_legs(vertices, faces, graph, mass, height, feet, up)
-    fore, hind, forward = _pair_feet(vertices, mass, up, feet, legs, forward)
+    extremities = body_plan.read_extremities(graph, mass)
+    choice = body_plan.choose_feet(extremities, vertices, faces, mass, up)
+    feet = np.array(choice.fore_pair + choice.other_pair)
+    distance = extremities.distance
+    # Each leg is followed up from its foot by geodesic rings (they stay across the leg around a
+    # bent knee) to where it meets the body, and cut there across its upper part; on an animal
+    # standing on its feet, across the ground's normal: at its armpit or groin (_follow_legs).
+    ground = up if up is not None else choice.ground
+    legs, axes, leg_tops = _follow_legs(vertices, faces, graph, mass, choice, distance, ground)
+    _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair))
+    top = body_plan.leg_top_distances(graph, legs, feet)
+    first, second = body_plan.read_ends(extremities, top, graph, legs, leg_tops, choice.fore_pair, choice.other_pair,
+                                        vertices, faces, mass, ground)
+    ends = body_plan.decide_head(first, second, forward, vertices)
+    fore, hind = list(ends.head.pair), list(ends.tail.pair)
+    up_given = up is not None
+    if up is None:
+        up = choice.ground if choice.ground is not None else _up_from_legs(vertices, mass, feet, axes)
+    chord = ends.head.centre - ends.tail.centre
+    if forward is not None:
+        flat = forward - (forward @ up) * up
+        if np.linalg.norm(flat) < 1e-6:
+            raise SegmentationError("--forward must not be parallel to up")
+    else:
+        flat = chord - (chord @ up) * up
+        if np.linalg.norm(flat) < 1e-9:
+            flat = chord
+    forward_axis = flat / np.linalg.norm(flat)
     labels = np.full(len(vertices), UNLABELLED, dtype=np.int64)
     for foot in fore:
         labels[legs == foot] = FORELIMBS
     for foot in hind:
         labels[legs == foot] = HINDLIMBS
-    _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind)
-    return labels, Frame(up=up, forward=forward)
+    # The torso runs along the ground's forward direction for an animal standing on its feet (as the
+    # generator's planes do), else along the chord between the girdles (sitting, rearing, lying).
+    standing = choice.ground is not None or up_given
+    torso_axis = forward_axis if standing or not np.linalg.norm(chord) > 0 else chord / np.linalg.norm(chord)
+    head_tip = ends.head.main_tip
+    if head_tip is None:   # a head that does not stick out: its farthest point from the tail's girdle
+        from_tail = dijkstra(graph, indices=ends.tail.girdle)
+        head_tip = int(np.argmax(np.where(ends.head.region, from_tail, -np.inf)))
+    _split_torso(vertices, faces, graph, mass, torso_axis, labels, ends, head_tip)
+    _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, distance)
+    _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance)
+    plan = body_plan.BodyPlan(
+        fore=tuple(fore), hind=tuple(hind), fore_girdle=ends.head.girdle, hind_girdle=ends.tail.girdle,
+        head_tip=head_tip, tail_tip=ends.tail.main_tip, head_features=tuple(t for pair in ends.head.mirror_pairs for t in pair),
+        distance=distance, cues=dict(ends.cues),
+        confidence=body_plan.confidence(choice, ends, forward is not None))
+    return labels, Frame(up=up, forward=forward_axis), plan
+
+
+LEG_RINGS = 90          # geodesic rings followed up each leg
+
+
+LEG_UPRIGHT = 30.0      # degrees: a leg of a standing animal within this of the ground's normal is cut level
+
+
+def _follow_legs(vertices, faces, graph, mass, choice, distance, ground=None):
+    """Legs of an animal in any pose: (per-vertex foot id, each leg's upper axis, each leg's top).
+
+    From each foot, the rings of geodesic distance s run across the leg, also around a bent knee.
+    Their length P(s) stays near the leg's girth until they reach the body, where it grows fast:
+    the junction is the knee of P's running maximum (past its narrowest ring), as for the neck.
+    All of the leg below the junction's ring is leg (the core); from there the leg is swept along
+    its upper part's axis (the direction of the rings' centres just below the junction) as a
+    standing leg is swept upwards (:func:`_cut_legs`): it ends where it meets the body. On an
+    animal standing on its feet (``ground``: the ground's normal), a leg whose upper part is within
+    LEG_UPRIGHT of upright is swept along the normal: cut level at its armpit or groin, the
+    convention of docs/segmentation.md.
+    """
+    feet = [int(f) for f in choice.fore_pair + choice.other_pair]
+    axes, tops, cores, ring_centres = {}, {}, {}, {}
+    for foot in feet:
+        pair, other = (choice.fore_pair, choice.other_pair) if foot in choice.fore_pair else (choice.other_pair, choice.fore_pair)
+        branch = int(np.argmin(distance[pair[0]] + distance[pair[1]] + 0.1 * (distance[other[0]] + distance[other[1]])))
+        followed = _follow_tip(vertices, faces, graph, foot, distance[foot], 1.5 * float(distance[foot][branch]))
+        if followed is None:
+            raise SegmentationError("a leg could not be followed up from its foot; the mesh does not look like a quadruped")
+        cores[foot], axis, ring_centres[foot] = followed[:3]
+        if ground is not None and axis @ ground > np.cos(np.radians(LEG_UPRIGHT)):
+            axis = np.asarray(ground, dtype=float)
+        axes[foot] = axis
+    cut = {}
+    legs = _cut_legs(vertices, faces, graph, mass, np.array(feet), axes, cores, cut)
+    for foot in feet:   # the top: the rings' centre line carried up to the cut
+        origin = vertices[foot] @ axes[foot]
+        tops[foot] = ring_centres[foot] + (origin + cut[foot] - ring_centres[foot] @ axes[foot]) * axes[foot]
+    return legs, axes, tops
+
+
+def _follow_tip(vertices, faces, graph, tip, field, span):
+    """Follow a protrusion (leg, tail, ear, horn) up from its tip by the rings of the geodesic
+    distance ``field`` from it, up to ``span``: (core, axis, ring centre, length) or None.
+
+    The rings' length P(s) stays near the protrusion's girth until they reach what it grows from,
+    where it grows fast: the junction is the knee of P's running maximum (:func:`_profile_knee`).
+    The core is the tip's part below the ring one girth-radius before the junction; the axis the
+    direction of the rings' centres over the last 40 % before it (pointing away from the tip);
+    ``length`` the junction's distance from the tip in radii of its ring; ``root`` the point one
+    radius along the axis past the last ring's centre and ``reach`` the distance from the tip within
+    which the protrusion ends (the junction plus three radii).
+    """
+    levels = np.linspace(0.0, span, LEG_RINGS + 1)[1:]
+    perimeter, centres = isocontour_profile(vertices, faces, field, levels)
+    perimeter = _moving_average(perimeter, 3)
+    junction = _profile_knee(levels, perimeter)
+    if junction is None:
+        return None
+    radius = max(perimeter[junction] / (2 * np.pi), levels[0])
+    below = max(int(np.searchsorted(levels, levels[junction] - radius)), 1)
+    lower = max(int(np.searchsorted(levels, 0.6 * levels[below])), 0)
+    axis = centres[below] - centres[lower]
+    if not np.linalg.norm(axis) > 0:
+        return None
+    axis = axis / np.linalg.norm(axis)
+    core = field < levels[below]
+    parts = vertex_components(graph, core)
+    root = centres[below] + radius * axis   # where the ring reaches what it grows from
+    return core & (parts == parts[tip]), axis, centres[below], float(levels[junction] / radius), root, float(levels[junction] + 3 * radius)
+
+
+def _profile_knee(track, values) -> int | None:
+    """Index where a profile that stays level then grows fast starts to grow: past its narrowest
+    value (before its largest), the point of its running maximum farthest below the chord to the
+    running maximum's top (no threshold)."""
+    values = np.asarray(values, dtype=float)
+    if len(values) < 4 or not values.max() > 0:
+        return None
+    start = int(np.argmax(values > 0))
+    widest = int(np.argmax(values))
+    if widest <= start:
+        return None
+    narrowest = start + int(np.argmin(values[start:widest + 1]))
+    grown = np.maximum.accumulate(values[narrowest:])
+    top = int(np.argmax(grown))
+    if top < 2:
+        return None
+    along = track[narrowest:] - track[narrowest]
+    chord = grown[0] + along * ((grown[top] - grown[0]) / along[top])
+    return narrowest + int(np.argmax((chord - grown)[:top + 1]))
+
+
+LEG_PAIR_MISMATCH = 0.5   # two legs of a pair whose areas differ more than this (of the larger) are not a pair
+
+
+def _check_leg_pairs(mass, legs, pairs) -> None:
+    """The two legs of a pair are mirror images: refuse when their areas are far apart (an ear or
+    a trunk taken for a leg)."""
+    for pair in pairs:
+        areas = [float(mass[legs == foot].sum()) for foot in pair]
+        if max(areas) <= 0 or abs(areas[0] - areas[1]) > LEG_PAIR_MISMATCH * max(areas):
+            raise SegmentationError(
+                f"the two legs found for a pair are not alike (areas {min(areas) / max(max(areas), 1e-300):.0%} of each "
+                f"other), so the four feet are not certain; {body_plan.SETTLE}")
+
+
+
+
+def _up_from_legs(vertices, mass, feet, axes) -> np.ndarray:
+    """Up for an animal not standing on all four feet: the normal of a plane through three feet
+    that nothing lies below (the ground it rests on) closest to the legs' mean direction, or that
+    direction itself."""
+    rough = np.sum([axes[int(foot)] for foot in feet], axis=0)
+    rough /= np.linalg.norm(rough)
+    centroid = np.average(vertices, axis=0, weights=mass)
+    best, best_cosine = rough, np.cos(np.radians(45.0))
+    for three in itertools.combinations(feet, 3):
+        points = vertices[list(three)]
+        normal = np.cross(points[1] - points[0], points[2] - points[0])
+        if np.linalg.norm(normal) < 1e-12:
+            continue
+        normal /= np.linalg.norm(normal)
+        if (centroid - points[0]) @ normal < 0:
+            normal = -normal
+        heights = (vertices - points[0]) @ normal
+        if heights.min() < -SUPPORT_TOLERANCE * heights.max():
+            continue
+        if normal @ rough > best_cosine:
+            best, best_cosine = normal, normal @ rough
+    return best
 
 
 # ---------------------------------------------------------------- extremities
 
-def average_geodesic_distance(graph: sparse.csr_matrix, mass: np.ndarray, sources: int = AGD_SOURCES) -> np.ndarray:
-    """Mean graph-geodesic distance from a farthest-point sample of ``sources`` vertices."""
-    n = graph.shape[0]
-    start = int(np.argmax(mass))  # deterministic, independent of vertex order only up to ties
-    chosen = [start]
-    distance = dijkstra(graph, indices=start)
-    rows = [distance]
-    nearest = distance.copy()
-    for _ in range(min(sources, n) - 1):
-        nxt = int(np.argmax(nearest))
-        chosen.append(nxt)
-        distance = dijkstra(graph, indices=nxt)
-        rows.append(distance)
-        nearest = np.minimum(nearest, distance)
-    return np.mean(rows, axis=0)
-
-
-def persistent_maxima(values: np.ndarray, graph: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
-    """Local maxima of a vertex function and their persistence (super-level-set union–find).
-
-    Sweeping downwards, each maximum starts a component; when two components meet at a
-    vertex, the one born lower dies there and its persistence is birth − that value (elder rule).
-    The global maximum's persistence is its value minus the global minimum.
-    """
-    order = np.argsort(-values, kind="stable")
-    parent = np.full(len(values), -1, dtype=np.int64)
-    birth_vertex = {}
-    persistence = {}
-    indptr, indices = graph.indptr, graph.indices
-
-    for v in order:
-        roots = {_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0}
-        if not roots:
-            parent[v] = v
-            birth_vertex[v] = v
-            continue
-        roots = sorted(roots, key=lambda r: -values[birth_vertex[r]])
-        survivor = roots[0]
-        parent[v] = survivor
-        for other in roots[1:]:
-            tip = birth_vertex[other]
-            persistence[tip] = values[tip] - values[v]
-            parent[other] = survivor
-    for root in {_find(parent, v) for v in range(len(values))}:
-        tip = birth_vertex[root]
-        persistence[tip] = values[tip] - values.min()
-    tips = np.array(sorted(persistence, key=lambda t: -persistence[t]), dtype=np.int64)
-    return tips, np.array([persistence[t] for t in tips])
-
-
-def find_extremities(vertices, graph, mass) -> Extremities:
-    """Tips of the mesh's protrusions, most persistent first (AGD maxima above a noise floor)."""
-    agd = average_geodesic_distance(graph, mass)
-    tips, persistence = persistent_maxima(agd, graph)
-    keep = persistence >= MIN_PERSISTENCE * (agd.max() - agd.min())
-    return Extremities(tips[keep], persistence[keep])
-
-
 # ---------------------------------------------------------------- feet and up
-
-def _find_feet(vertices, mass, extremities: Extremities, up):
-    tips = extremities.vertices[:CANDIDATE_TIPS]
-    strength = extremities.persistence[:CANDIDATE_TIPS]
-    if len(tips) < 4:
-        raise SegmentationError(
-            f"found only {len(tips)} limb-like extremities, a standing quadruped has at least four feet; "
-            "this mesh does not look like a quadruped (segment it by hand: allorules segment --patches)"
-        )
-    centroid = np.average(vertices, axis=0, weights=mass)
-    best, best_score = None, -np.inf
-    for combination in itertools.combinations(range(len(tips)), 4):
-        points = vertices[tips[list(combination)]]
-        normal = _support_normal(points, centroid, up)
-        if normal is None:
-            continue
-        heights = (vertices - points.mean(axis=0)) @ normal
-        body_height = heights.max()
-        foot_heights = heights[tips[list(combination)]]
-        spread = np.max(np.linalg.norm(points[:, None] - points[None], axis=2))
-        if np.ptp(foot_heights) > PLANARITY_TOLERANCE * spread:
-            continue
-        if heights.min() < foot_heights.min() - SUPPORT_TOLERANCE * body_height:
-            continue
-        if not _inside_quad(points, centroid, normal):
-            continue
-        # Standing on the ground: the four feet are the lowest points and level with each other.
-        # The better support (less of the mesh below the lowest foot, feet more level) wins; a
-        # hanging trunk or tail tip with three feet makes a tilted plane the fourth foot dips
-        # below. Persistence only breaks ties between equally good supports.
-        misfit = (max(foot_heights.min() - heights.min(), 0.0) + np.ptp(foot_heights)) / spread
-        score = -round(misfit / SUPPORT_RESOLUTION) + strength[list(combination)].sum() / strength.sum()
-        if score > best_score:
-            best, best_score = (tips[list(combination)], normal), score
-    if best is None:
-        raise SegmentationError(
-            "four feet standing on a common ground plane were not found; the mesh does not look like a "
-            "standing quadruped (if it is one, give --up; otherwise segment it by hand with allorules segment)"
-        )
-    return best
-
-
-def _support_normal(points, centroid, up):
-    if up is not None:
-        return up if (centroid - points.mean(axis=0)) @ up > 0 else None
-    centred = points - points.mean(axis=0)
-    _, singular, axes = np.linalg.svd(centred)
-    if singular[1] < 1e-9:
-        return None
-    normal = axes[2]
-    return normal if (centroid - points.mean(axis=0)) @ normal > 0 else -normal
-
-
-def _inside_quad(points, centroid, normal) -> bool:
-    """Whether the centroid projects inside the convex hull of the four feet (on their plane)."""
-    basis_u = np.cross(normal, [1.0, 0.0, 0.0])
-    if np.linalg.norm(basis_u) < 0.1:
-        basis_u = np.cross(normal, [0.0, 1.0, 0.0])
-    basis_u /= np.linalg.norm(basis_u)
-    basis_v = np.cross(normal, basis_u)
-    flat = np.column_stack([points @ basis_u, points @ basis_v])
-    target = np.array([centroid @ basis_u, centroid @ basis_v])
-    hull = flat[_convex_hull_2d(flat)]
-    signs = []
-    for a, b in zip(hull, np.roll(hull, -1, axis=0)):
-        edge, offset = b - a, target - a
-        signs.append(edge[0] * offset[1] - edge[1] * offset[0])
-    signs = np.array(signs)
-    return bool(np.all(signs >= 0) or np.all(signs <= 0))
-
-
-def _convex_hull_2d(points):
-    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
-
-    def cross(o, a, b):
-        return (points[a][0] - points[o][0]) * (points[b][1] - points[o][1]) - (points[a][1] - points[o][1]) * (points[b][0] - points[o][0])
-
-    lower, upper = [], []
-    for i in order:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], i) <= 0:
-            lower.pop()
-        lower.append(i)
-    for i in reversed(order):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], i) <= 0:
-            upper.pop()
-        upper.append(i)
-    return lower[:-1] + upper[:-1]
-
 
 # ---------------------------------------------------------------- legs
 
-def _cut_legs(vertices, faces, graph, mass, height, feet, up) -> np.ndarray:
+def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=None, strict=True) -> np.ndarray:
     """Per-vertex foot id (−1 off the legs): each foot's part of the surface below its cut plane.
 
-    Sweep upwards (sub-level sets of height, union–find). A foot's part stops growing at the
-    first height where it meets another substantial part (area ≥ SUBSTANTIAL_PART of the
-    surface, or holding another foot): that height is the leg's horizontal cut. Two legs that
-    only touch (knees, hocks) are not the body: when two feet's parts meet and, just above the
-    meeting, the horizontal section still shows them as two separate loops, the sweep goes on
-    with them together; their shared part is split between the feet by geodesic distance.
+    Each leg is swept along its own axis (``axes[foot]``, from the foot up the leg: up for a
+    standing leg, slanted for a swung one): sub-level sets of the height along that axis,
+    union–find. The foot's part stops growing at the first height where it meets another
+    substantial part (area ≥ SUBSTANTIAL_PART of the surface, or holding another foot): that
+    height is the leg's cut, a plane across the leg at its armpit or groin. Two legs that only
+    touch (knees, hocks) are not the body: when the foot's part meets another foot's and, just
+    above the meeting, the section across the axis still shows them as two separate loops, the
+    sweep goes on. Where two legs claim the same vertices (touching legs), each goes to the
+    geodesically nearest foot.
+
+    ``cores`` (foot → mask): a part of the leg known already (below a bent knee), joined to the
+    foot's part before the sweep starts. ``levels_out`` (dict) receives each foot's cut height.
+    ``strict=False``: a tip whose part never meets another is left out instead of refused.
     """
-    n = len(height)
-    order = np.argsort(height, kind="stable")
-    parent = np.full(n, -1, dtype=np.int64)
-    area = np.zeros(n)
-    holds_foot = np.zeros(n, dtype=bool)
-    cut = {int(foot): None for foot in feet}
+    n = len(vertices)
     substantial = SUBSTANTIAL_PART * mass.sum()
     indptr, indices = graph.indptr, graph.indices
     is_foot = np.zeros(n, dtype=bool)
     is_foot[feet] = True
-    members: dict[int, list[int]] = {}
-    touching = []   # pairs of feet whose legs touch below their cuts
     pairs = None
-    for v in order:
-        roots = list({_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0})
-        big = [r for r in roots if holds_foot[r] or area[r] >= substantial]
-        foot_roots = [r for r in roots if holds_foot[r]]
-        if len(big) >= 2:
-            if len(big) == len(foot_roots) and all(cut[f] is None for r in foot_roots for f in members[r]):
-                if pairs is None:
-                    pairs = _face_pairs(faces)
-                if _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v):
-                    touching.append([f for r in foot_roots for f in members[r]])
-                    big = []
-            for r in foot_roots if big else []:
-                for foot in members[r]:
-                    if cut[foot] is None:
-                        cut[foot] = height[v]
-        parent[v] = v
-        area[v] = mass[v]
-        holds_foot[v] = is_foot[v]
-        members[v] = [int(v)] if is_foot[v] else []
-        for r in roots:
-            parent[r] = v
-            area[v] += area[r]
-            holds_foot[v] |= holds_foot[r]
-            members[v] += members.pop(r)
-        if all(value is not None for value in cut.values()):
-            break
-    legs = np.full(n, -1, dtype=np.int64)
-    for foot, level in cut.items():
+    claimed = np.zeros((len(feet), n), dtype=bool)
+    for k, foot in enumerate(int(f) for f in feet):
+        axis = axes[foot]
+        height = (vertices - vertices[foot]) @ axis
+        order = np.argsort(height, kind="stable")
+        parent = np.full(n, -1, dtype=np.int64)
+        area = np.zeros(n)
+        holds_foot = np.zeros(n, dtype=bool)
+        level = None
+        core = cores.get(foot) if cores else None
+        if core is not None:
+            members = np.flatnonzero(core)
+            parent[members] = foot
+            area[foot] = mass[members].sum()
+            holds_foot[foot] = True
+            order = order[~core[order]]
+        for v in order:
+            roots = list({_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0})
+            mine = [r for r in roots if _find(parent, foot) == r] if parent[foot] >= 0 else []
+            if mine:
+                others = [r for r in roots if r != mine[0] and (holds_foot[r] or area[r] >= substantial)]
+                if others:
+                    if all(holds_foot[r] for r in others):
+                        if pairs is None:
+                            pairs = _face_pairs(faces)
+                        touching = _legs_touch(vertices, faces, pairs, height, axis, parent, mine + others, v)
+                    else:
+                        touching = False
+                    if not touching:
+                        level = height[v]
+                        break
+            parent[v] = v
+            area[v] = mass[v]
+            holds_foot[v] = is_foot[v]
+            for r in roots:
+                parent[r] = v
+                area[v] += area[r]
+                holds_foot[v] |= holds_foot[r]
         if level is None:
-            raise SegmentationError("a leg could not be separated from the body; the mesh does not look like a standing quadruped")
-        parts = vertex_components(graph, height < level)
-        legs[(parts == parts[foot]) & (height < level)] = foot
-    for group in touching:   # legs that touch: the shared part goes to the geodesically nearest foot
-        shared = np.isin(legs, group)
-        if not shared.any():
-            continue
-        index = np.flatnonzero(shared)
-        local = {int(v): i for i, v in enumerate(index)}
-        distance = dijkstra(graph[index][:, index], indices=[local[f] for f in group if f in local])
-        legs[index] = np.array([f for f in group if f in local])[np.argmin(distance, axis=0)]
+            if not strict:
+                continue
+            raise SegmentationError("a leg could not be separated from the body; the mesh does not look like a quadruped")
+        below = height < level
+        if core is not None:
+            below |= core
+        parts = vertex_components(graph, below)
+        claimed[k] = below & (parts == parts[foot])
+        if levels_out is not None:
+            levels_out[foot] = float(level)
+    legs = np.full(n, -1, dtype=np.int64)
+    count = claimed.sum(axis=0)
+    for k, foot in enumerate(feet):
+        legs[claimed[k] & (count == 1)] = int(foot)
+    shared = np.flatnonzero(count > 1)
+    if len(shared):   # legs that touch: the shared part goes to the geodesically nearest foot
+        union = np.flatnonzero(count > 0)
+        local = {int(v): i for i, v in enumerate(union)}
+        distance = dijkstra(graph[union][:, union], indices=[local[int(f)] for f in feet])
+        nearest = np.asarray(feet)[np.argmin(distance, axis=0)]
+        legs[shared] = nearest[[local[int(v)] for v in shared]]
     return legs
 
 
-def _find(parent: np.ndarray, x: int) -> int:
-    """Root of x in a union–find forest stored in ``parent`` (path compression on the way)."""
-    root = x
-    while parent[root] != root:
-        root = parent[root]
-    while parent[x] != root:
-        parent[x], x = root, parent[x]
-    return root
-
-
 def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bool:
-    """Whether the feet's parts meeting at vertex v only touch: in horizontal sections a little
+    """Whether the feet's parts meeting at vertex v only touch: in sections across ``up`` (the
+    sweep's axis; ``height`` is along it) a little
     (two typical edge heights) and one leg radius above v, the loops nearest each part's top are
     different loops (legs that go on separately), not one (the body that joins them)."""
     step = 2 * float(np.median(np.abs(height[faces[:, 0]] - height[faces[:, 1]])))
@@ -380,12 +408,12 @@ def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bo
     for root in foot_roots:
         mine = processed[root_of == root]
         band = mine[height[mine] >= min(height[v] - step, height[mine].max())]   # never empty
-        tops.append(vertices[band].mean(axis=0))
+        tops.append((vertices[band].mean(axis=0), height[band].mean()))
     rise = step
     for _ in range(2):
         loops, radius = set(), 0.0
-        for top in tops:
-            point = top + (height[v] + rise - top @ up) * up
+        for top, top_height in tops:
+            point = top + (height[v] + rise - top_height) * up
             section = _section_loop(vertices, faces, pairs, point, up)
             if section is None:
                 return False
@@ -397,72 +425,153 @@ def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bo
     return True
 
 
-def _pair_feet(vertices, mass, up, feet, legs, forward):
-    """Split the feet into fore and hind pairs and fix the forward direction."""
-    points = vertices[feet]
-    pairings = [((0, 1), (2, 3)), ((0, 2), (1, 3)), ((0, 3), (1, 2))]
-
-    def in_pair_distance(pairing):
-        return sum(np.linalg.norm(points[a] - points[b]) for a, b in pairing)
-
-    pair_a, pair_b = min(pairings, key=in_pair_distance)
-    middle_a = points[list(pair_a)].mean(axis=0)
-    middle_b = points[list(pair_b)].mean(axis=0)
-    axis = middle_b - middle_a
-    axis -= (axis @ up) * up
-    axis /= np.linalg.norm(axis)
-    if forward is not None:
-        flat = forward - (forward @ up) * up
-        if np.linalg.norm(flat) < 1e-6:
-            raise SegmentationError("--forward must not be parallel to up")
-        flat /= np.linalg.norm(flat)
-        if flat @ axis < 0:
-            axis = -axis
-            pair_a, pair_b = pair_b, pair_a
-        forward_axis = flat
-    else:
-        torso = legs < 0
-        along = vertices @ axis
-        beyond_b = mass[torso & (along > middle_b @ axis)].sum()
-        beyond_a = mass[torso & (along < middle_a @ axis)].sum()
-        if beyond_a > beyond_b:
-            axis = -axis
-            pair_a, pair_b = pair_b, pair_a
-        forward_axis = axis
-    fore = [int(feet[i]) for i in pair_b]
-    hind = [int(feet[i]) for i in pair_a]
-    return fore, hind, forward_axis
-
-
 # ---------------------------------------------------------------- torso
 
-def _split_torso(vertices, faces, graph, mass, up, forward, labels, fore, hind) -> None:
+LEAK_SHARE = 0.01   # a head or neck cut with more of its area than this behind the middle plane leaks
+
+
+def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> None:
     """Label the rest (not legs): head, neck, chest, abdomen. Fills ``labels`` in place.
 
-    Head and neck: the section loops of :func:`_neck_cuts` cut them off the front (each the part
-    connected to the head tip beyond its loop, see :func:`_beyond_loop`). Chest/abdomen: the
-    vertical plane half way between the fore and hind feet. The tail (behind the hind legs)
-    stays with the abdomen.
+    Chest/abdomen: the plane across ``axis`` (hind girdle → fore girdle) half way between the two
+    girdles. Head and neck: the section loops of :func:`_neck_cuts`, followed from ``head_tip``,
+    cut them off the front (each the part connected to the head tip beyond its loop, see
+    :func:`_beyond_loop`); a cut with more than LEAK_SHARE of its area behind the middle plane
+    leaks into the body and is not used. Where that gives no head or no neck, the rings from the
+    head tip decide them (:func:`_ring_head_and_neck`). The tail
+    (behind the hind legs) stays with the abdomen here; :func:`_cut_appendages` takes it out.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
-    along = vertices @ forward
-    fore_along = vertices[fore].mean(axis=0) @ forward
-    hind_along = vertices[hind].mean(axis=0) @ forward
-    middle = 0.5 * (fore_along + hind_along)
+    along = vertices @ axis
+    middle = 0.5 * (ends.head.centre + ends.tail.centre) @ axis
     in_rest = np.zeros(len(vertices), dtype=bool)
     in_rest[rest] = True
     labels[in_rest & (along >= middle)] = CHEST
     labels[in_rest & (along < middle)] = ABDOMEN
-    head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, along, np.flatnonzero(labels == FORELIMBS))
-    if head_cut is None:
+    head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, head_tip, np.flatnonzero(labels == FORELIMBS))
+    if head_cut is not None:
+        pairs = _face_pairs(faces)
+        for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
+            beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, head_tip)
+            if beyond is None or mass[beyond & (along < middle)].sum() > LEAK_SHARE * mass[beyond].sum():
+                continue   # the loop does not cut the front off (or leaks into the body): leave it
+            labels[beyond] = region
+    if not ((labels == HEAD).any() and (labels == NECK).any()):
+        _ring_head_and_neck(vertices, faces, graph, mass, labels, in_rest & ends.head.region, head_tip, along, middle)
+
+
+def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, along, middle) -> None:
+    """Head and neck when the skeleton's bend gave none (a head held low, a neck the tube-following
+    loses): the rings of geodesic distance from the head tip over the front end (``front``, beyond
+    the fore legs' plane). Their length grows over the head and narrows at the throat: the head is
+    the tip's part within the narrowest ring past the head's widest (in the first 60 % of the way;
+    without a narrowing, 40 % of the way), the neck the rest of the front end."""
+    if not front[head_tip]:
         return
-    tip = rest[np.argmax(along[rest])]
-    pairs = _face_pairs(faces)
-    for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
-        beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, tip)
-        if beyond is None or (along[beyond] < middle).any():
-            continue   # the loop does not cut the front off (or leaks into the body): leave it
-        labels[beyond] = region
+    index = np.flatnonzero(front)
+    local = np.full(len(vertices), -1)
+    local[index] = np.arange(len(index))
+    field = np.full(len(vertices), np.inf)
+    field[index] = dijkstra(graph[index][:, index], indices=local[head_tip])
+    reach = float(field[np.isfinite(field)].max())
+    levels = np.linspace(0.0, reach, PROFILE_LEVELS + 1)[1:]
+    front_faces = faces[front[faces].all(axis=1)]
+    perimeter, _ = isocontour_profile(vertices, front_faces, field, levels)
+    perimeter = _moving_average(perimeter, 5)
+    first = max(int(0.6 * len(levels)), 2)
+    widest = int(np.argmax(perimeter[:first]))
+    throat = widest + int(np.argmin(perimeter[widest:first]))
+    if throat in (widest, first - 1):   # no narrowing after the head's widest ring
+        throat = int(0.4 * len(levels))
+    inside = front & (field < levels[throat])
+    parts = vertex_components(graph, inside)
+    head = inside & (parts == parts[head_tip])
+    neck = front & ~head
+    if not neck.any() or mass[front & (along < middle)].sum() > LEAK_SHARE * mass[front].sum():
+        return
+    labels[head] = HEAD
+    labels[neck] = NECK
+
+
+def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, distance) -> None:
+    """Ears and horns grow from the head: when the head/neck cut left one of them in the neck (an
+    animal with no visible neck, whose bend is the muzzle's), the head is taken back to just
+    behind the farthest one's root: every vertex of the head or neck nearer (geodesically) to the
+    head tip than that root plus the root's radius. The neck keeps what lies behind."""
+    field = distance.get(head_tip)
+    if field is None:
+        return
+    reach = 0.0
+    for tip in ends.head.features:
+        if labels[tip] != NECK or tip not in distance:
+            continue
+        followed = _follow_tip(vertices, faces, graph, tip, distance[tip], float(distance[tip][ends.head.girdle]))
+        if followed is None:
+            continue
+        core, axis, centre, length, root, _ = followed
+        radius = float(np.linalg.norm(root - centre))
+        nearest = int(np.argmin(np.linalg.norm(vertices - root, axis=1)))
+        reach = max(reach, float(field[nearest]) + radius)
+    if reach <= 0:
+        return
+    front = np.isin(labels, (HEAD, NECK)) & (field < reach)
+    parts = vertex_components(graph, front)
+    head = front & (parts == parts[head_tip])
+    if (labels[head] == NECK).all() or (np.isin(labels, (HEAD, NECK)) & ~head).sum() == 0:
+        return   # nothing of the neck would be left: keep the cut as it was
+    labels[head] = HEAD
+
+
+TRUNK_LENGTH = 3.0        # a nose followed as a tube this many of its radii before the head is a trunk
+APPENDAGE_SHARE = 0.4     # an ear or horn cut larger than this share of the head is not one
+TRUNK_SHARE = 0.7         # nor a trunk larger than this share (the head is more than its nose)
+TAIL_SHARE = 0.3          # nor a tail larger than this share of the torso
+
+
+def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance) -> None:
+    """Take the tail out of the torso, ears, horns and a trunk out of the head (labels in place).
+
+    Each is followed from its tip by geodesic rings to where it grows from (:func:`_follow_tip`)
+    and cut by the plane across its root there: the tail tip of the tail end when
+    it sticks out prominently; the head's features (flat: ears; thin tubes: horns); the head tip
+    when it is the end of a tube at least TRUNK_LENGTH radii long (a trunk). A cut is kept only
+    within the region it grows from (torso, head), and an ear or horn only when it is smaller than
+    APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE, a tail TAIL_SHARE of the torso.
+    """
+    tail_index, ears_index, horns_index, trunk_index = (ALL_REGIONS.index(name) for name in APPENDAGES)
+    cuts = []
+    tail = ends.tail
+    if tail.main_tip is not None and tail.protrudes:
+        torso_area = mass[(labels == CHEST) | (labels == ABDOMEN)].sum()
+        cuts.append((tail.main_tip, tail.girdle, (CHEST, ABDOMEN), tail_index, TAIL_SHARE * torso_area))
+    head = labels == HEAD
+    head_area = mass[head].sum()
+    for tip, kind in ends.head.features.items():
+        cuts.append((tip, ends.head.girdle, (HEAD,), ears_index if kind == "flat" else horns_index, APPENDAGE_SHARE * head_area))
+    cuts.append((head_tip, ends.head.girdle, (HEAD,), trunk_index, TRUNK_SHARE * head_area))
+    for tip, girdle, within, index, largest in cuts:
+        if labels[tip] not in within:
+            continue
+        field = distance.get(tip)
+        if field is None:
+            continue
+        followed = _follow_tip(vertices, faces, graph, tip, field, float(field[girdle]))
+        if followed is None:
+            continue
+        core, axis, _, length, root, reach = followed
+        if index == trunk_index and length < TRUNK_LENGTH:
+            continue
+        # all of it below its junction's ring, and what the tip reaches below the plane across its
+        # root (a sweep would run on into a body that is not below the root, as a leg's belly is)
+        candidate = core | ((field < reach) & ((vertices - root) @ axis < 0))
+        parts = vertex_components(graph, candidate)
+        region = candidate & (parts == parts[tip])
+        region &= np.isin(labels, within)
+        if index == trunk_index:
+            region &= head
+        if not region.any() or (largest is not None and mass[region].sum() > largest):
+            continue
+        labels[region] = index
 
 
 def _beyond_loop(vertices, faces, graph, pairs, point, normal, allowed, tip):
@@ -527,7 +636,7 @@ BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE
 MIN_NECK_LENGTH = 1.0      # a neck runs at least one of its radii from the bend to its base
 
 
-def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
+def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     """(head cut, neck cut) as (point, normal) planes, normals towards the head tip, or
     (None, None) if no neck is found.
 
@@ -545,7 +654,7 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
     Only the section loops cut (see :func:`_beyond_loop`), so a bulge of the chest in front of
     a plane stays chest.
     """
-    tip_local = int(np.argmax(along[rest]))
+    tip_local = int(np.flatnonzero(rest == head_tip)[0])
     sub = graph[rest][:, rest]
     distance_local = dijkstra(sub, indices=tip_local)
     distance = np.full(len(vertices), np.inf)
@@ -591,6 +700,9 @@ def _neck_cuts(vertices, faces, graph, rest, along, forelimb):
             continue
         neck_direction = neck_direction / np.linalg.norm(neck_direction)
         neck = _follow_neck(vertices, faces, pairs, centroids[bend], neck_direction, step, span)
+        if neck is None:   # the plane at the bend may cut the back of the head too: start a little down the neck
+            later = min(bend + w // 2, len(centroids) - 1)
+            neck = _follow_neck(vertices, faces, pairs, centroids[later], neck_direction, step, span)
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
@@ -665,23 +777,13 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
             travelled[narrowest] / radii[narrowest], throat)
 
 
-def _face_pairs(faces):
-    """Pairs of faces sharing an edge (rows of two face ids)."""
-    edges = corner_edges(faces)
-    face_of = np.tile(np.arange(len(faces)), 3)
-    key = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
-    order = np.argsort(key, kind="stable")
-    key, face_of = key[order], face_of[order]
-    same = key[1:] == key[:-1]
-    return np.column_stack([face_of[:-1][same], face_of[1:][same]])
-
-
 def _section_loop(vertices, faces, pairs, point, normal):
     """(area, centre, faces) of the loop of the plane section through ``point`` (⟂ ``normal``)
     nearest ``point``, or None where the plane misses the surface.
 
     The faces the plane crosses form one ring per loop (joined through shared edges); the loop
-    whose length-weighted centre is nearest ``point`` is taken. Area = |½ Σ (p_k − o) × (q_k − o) · n|
+    around ``point`` is taken (the smallest, if nested), else the loop whose length-weighted
+    centre is nearest ``point``. Area = |½ Σ (p_k − o) × (q_k − o) · n|
     over its oriented segments p_k → q_k (o any point of the plane: ``point``).
     """
     side = (vertices - point) @ normal
@@ -715,9 +817,20 @@ def _section_loop(vertices, faces, pairs, point, normal):
     weight = np.bincount(loop_of, weights=length, minlength=loops)
     centre = np.column_stack([np.bincount(loop_of, weights=middle[:, i] * length, minlength=loops)
                               for i in range(3)]) / np.maximum(weight, 1e-300)[:, None]
-    nearest = int(np.argmin(np.linalg.norm(centre - point, axis=1)))
+    # The loop around the point (winding number ±1 about it in the plane), the smallest if
+    # several are nested; else the loop whose centre is nearest (a point not inside the surface).
+    u, w = start - point, end - point
+    angle = np.arctan2(np.cross(u, w) @ normal, np.einsum("ij,ij->i", u, w))
+    winding = np.abs(np.bincount(loop_of, weights=angle, minlength=loops)) / (2 * np.pi)
+    areas = np.abs(0.5 * np.column_stack([np.bincount(loop_of, weights=np.cross(u, w)[:, i], minlength=loops)
+                                          for i in range(3)]) @ normal)
+    around = np.flatnonzero(winding > 0.5)
+    if len(around):
+        nearest = int(around[np.argmin(areas[around])])
+    else:
+        nearest = int(np.argmin(np.linalg.norm(centre - point, axis=1)))
     mine = loop_of == nearest
-    area = float(abs(0.5 * np.cross(start[mine] - point, end[mine] - point).sum(axis=0) @ normal))
+    area = float(areas[nearest])
     return area, centre[nearest], crossed[mine]
 
 

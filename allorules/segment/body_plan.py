@@ -1,0 +1,659 @@
+"""The body plan of a quadruped, read from its extremities: which tips are the feet, which pair is
+fore and which hind, which end is the head, with a named margin for every decision.
+
+Everything here is intrinsic: geodesic distances on the surface (graph Dijkstra) and the average
+geodesic distance (AGD), which a change of pose (a leg swung, a neck turned, a tail curled) leaves
+nearly as they were, and which do not depend on the file's orientation, units or vertex order.
+
+1. **Extremities.** Local maxima of the AGD ranked by persistence .
+   The body-plan candidates are the prominent ones (persistence ≥ ``CANDIDATE_PERSISTENCE`` of the
+   AGD range); the fainter ones (down to ``FEATURE_PERSISTENCE``) can still be features of the head.
+2. **Feet** (:func:`_feet_hypotheses`). Any two disjoint pairs of candidates are a hypothesis. On a
+   quadruped the four feet make a tree of geodesic distances: the two feet of a pair are closer to
+   each other than to the other pair (the four-point condition; the gap is the spine between the
+   girdles), the two legs of a pair are mirror images (equal length from the foot to where the pair
+   branches, equal AGD), fore and hind legs are of a kind (lengths within a factor), and the feet
+   are prominent tips. Each departure costs a penalty of about one where it
+   is clearly wrong; a ground plane the four feet stand on (the common case) lowers the cost. The
+   cheapest hypothesis wins; ``feet`` confidence is its cost margin over the next one.
+3. **Fore or hind** (:func:`_head_tail_cues`). Of the two ends, the head end is decided by
+   independent cues, each an evidence in [−1, 1]:
+   * ``mass``: surface beyond each girdle (head and neck outweigh a tail and rump);
+   * ``features``: tips beyond a girdle that form a mirror pair off the main protrusion (ears,
+     horns, eyes) are found on a head, not on a tail;
+   * ``thickness``: the end protrusion's girth part-way along it, against the torso's (a tail is
+     thin; a head, even a cartoon's, is not);
+   * ``presence``: an end with a prominent protrusion against an end with none (tails can be
+     missing).
+   The sum decides; it is refused when it is small, when fewer than two cues speak for it, or
+   when a strong cue disagrees with it.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sparse
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from allorules.errors import SegmentationError
+from allorules.mesh.topology import corner_edges, directed_edges, vertex_components
+
+CANDIDATE_PERSISTENCE = 0.08   # of the AGD range: prominent tips (feet, head, tail, big horns)
+FEATURE_PERSISTENCE = 0.01     # of the AGD range: faint tips (ears, small horns, the nose behind horns)
+MAX_CANDIDATES = 10
+MIN_CONTRAST = 0.2             # AGD range / mean below this: a blob or a tube, no limbs (quadrupeds: 0.5–0.9)
+
+# Penalties: each about one where the hypothesis is clearly not a quadruped's feet.
+PAIR_LENGTH_MISMATCH = 0.30    # relative difference of the two legs of a pair
+PAIR_AGD_MISMATCH = 0.15       # of the AGD range
+LEG_RATIO = 0.45               # shortest / longest leg below this costs
+SPINE_RATIO = 0.35             # spine between the girdles / mean leg length below this costs
+FLAT_LEG = 2.5                 # ring flatness (long / short extent) above this is not a leg's
+GROUND_BONUS = 0.5             # four feet on a common supporting plane (standing)
+FEET_MARGIN = 0.25             # cost margin below which the feet are not certain
+
+# Tips of an end.
+APPENDAGE_RING = 0.35          # a tip whose ring is thinner than this share of the end's widest is a horn-like tube
+FLAT_APPENDAGE = 2.0           # a tip whose ring is flatter than this is an ear-like sheet
+MIRROR_PERSISTENCE = 0.03      # mirror features (ears, horns) are at least this prominent
+MIRROR_AGD = 0.05              # of the AGD range
+MIRROR_REACH = 0.1             # relative difference of their distances from the girdle
+MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
+
+# Head or tail.
+HEAD_TAIL_MARGIN = 0.6         # summed evidence needed
+STRONG_CUE = 0.5               # a cue this strong against the sum refuses
+AGREEING_CUE = 0.25            # at least two cues this strong must speak for the chosen end
+
+SETTLE = ("settle it with --forward DIR (tail to head), a labels file (--segmentation FILE), or "
+          "allorules segment MESH --patches 24 --png patches.png and a merge file")
+
+
+@dataclass
+class BodyPlan:
+    """Feet (vertex ids), which end is the head, and how sure each decision is."""
+
+    fore: tuple[int, int]
+    hind: tuple[int, int]
+    fore_girdle: int                 # vertex where the fore pair branches (under the chest)
+    hind_girdle: int
+    head_tip: int | None
+    tail_tip: int | None
+    head_features: tuple[int, ...]   # tips of ears / horns on the head
+    distance: dict[int, np.ndarray]  # geodesic distance field of each tip used
+    confidence: dict[str, float] = field(default_factory=dict)
+    cues: dict[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+@dataclass
+class _Tips:
+    vertices: np.ndarray
+    persistence: np.ndarray      # relative to the AGD range
+    agd: np.ndarray              # AGD at the tip, relative: 0 at the AGD minimum, 1 at its maximum
+    flatness: np.ndarray         # of the ring around the tip's protrusion: 1 round, more for a flat sheet
+
+
+def geodesic_fields(graph, sources) -> dict[int, np.ndarray]:
+    """Graph-geodesic distance from each source vertex, as {vertex: field}."""
+    sources = [int(s) for s in sources]
+    if not sources:
+        return {}
+    rows = dijkstra(graph, indices=sources)
+    return {s: rows[k] for k, s in enumerate(sources)}
+
+
+def _gromov(d, x, y, z) -> float:
+    """(y|z)_x = ½ (d(x,y) + d(x,z) − d(y,z)): distance from x to where the paths to y and z part."""
+    return 0.5 * (d[x][y] + d[x][z] - d[y][z])
+
+
+@dataclass
+class _Hypothesis:
+    pairs: tuple[tuple[int, int], tuple[int, int]]   # candidate indices
+    cost: float
+    terms: dict[str, float]
+    legs: tuple[float, float, float, float]
+    spine: float
+
+
+def _feet_hypotheses(tips: _Tips, d, vertices, mass, up) -> list[_Hypothesis]:
+    """Every pair of disjoint candidate pairs, with its cost (lowest first)."""
+    n = len(tips.vertices)
+    hypotheses = []
+    centroid = np.average(vertices, axis=0, weights=mass)
+    for four in itertools.combinations(range(n), 4):
+        a, b, c, e = four
+        pairings = [((a, b), (c, e)), ((a, c), (b, e)), ((a, e), (b, c))]
+        sums = [d[p][q] + d[r][s] for (p, q), (r, s) in pairings]
+        order = np.argsort(sums)
+        (p, q), (r, s) = pairings[order[0]]
+        spine = 0.5 * (sums[order[1]] - sums[order[0]])
+        legs = (
+            np.mean([_gromov(d, p, q, o) for o in (r, s)]),
+            np.mean([_gromov(d, q, p, o) for o in (r, s)]),
+            np.mean([_gromov(d, r, s, o) for o in (p, q)]),
+            np.mean([_gromov(d, s, r, o) for o in (p, q)]),
+        )
+        legs = tuple(max(value, 1e-9) for value in legs)
+        mean_leg = float(np.mean(legs))
+        terms = {}
+        terms["pair-length"] = max(abs(legs[0] - legs[1]) / (0.5 * (legs[0] + legs[1])),
+                                   abs(legs[2] - legs[3]) / (0.5 * (legs[2] + legs[3]))) / PAIR_LENGTH_MISMATCH
+        terms["pair-agd"] = max(abs(tips.agd[p] - tips.agd[q]), abs(tips.agd[r] - tips.agd[s])) / PAIR_AGD_MISMATCH
+        terms["leg-ratio"] = max(0.0, 1.0 - (min(legs) / max(legs)) / LEG_RATIO)
+        terms["spine"] = max(0.0, 1.0 - (spine / mean_leg) / SPINE_RATIO)
+        terms["persistence"] = 1.0 - tips.persistence[list(four)].sum() / np.sort(tips.persistence)[::-1][:4].sum()
+        # Legs are tubes: a flat sheet (a big ear) is not a leg.
+        terms["flat"] = sum(max(0.0, (tips.flatness[x] - FLAT_LEG) / FLAT_LEG) for x in four)
+        ground = _ground_plane(vertices[tips.vertices[list(four)]], vertices, centroid, up)
+        terms["ground"] = -GROUND_BONUS if ground is not None else 0.0
+        cost = sum(terms.values())
+        hypotheses.append(_Hypothesis(((p, q), (r, s)), cost, terms, legs, spine))
+    hypotheses.sort(key=lambda h: h.cost)
+    return hypotheses
+
+
+PLANARITY_TOLERANCE = 0.12  # foot heights off their plane, relative to the feet's spread
+SUPPORT_TOLERANCE = 0.06    # how far (relative to body height) the mesh may dip below the foot plane
+
+
+def _ground_plane(points, vertices, centroid, up):
+    """Unit normal (towards the body) of a plane the four feet stand on, or None: the feet lie on
+    it (height spread ≤ PLANARITY_TOLERANCE of their spread), nothing dips more than
+    SUPPORT_TOLERANCE of the body height below it, and the centroid projects inside the feet."""
+    normal = _support_normal(points, centroid, up)
+    if normal is None:
+        return None
+    heights = (vertices - points.mean(axis=0)) @ normal
+    foot_heights = (points - points.mean(axis=0)) @ normal
+    spread = np.max(np.linalg.norm(points[:, None] - points[None], axis=2))
+    if np.ptp(foot_heights) > PLANARITY_TOLERANCE * spread:
+        return None
+    if heights.min() < foot_heights.min() - SUPPORT_TOLERANCE * heights.max():
+        return None
+    if not _inside_quad(points, centroid, normal):
+        return None
+    return normal
+
+
+# ---------------------------------------------------------------- extremities and feet
+
+RING_SHARE = 0.25   # the ring whose shape is judged lies this share of the way to the nearest other tip
+
+
+def isocontour_segments(vertices, faces, field, level):
+    """Segments (start, end) of the isocontour of a per-vertex field at one level."""
+    values = field[faces]
+    above = values > level
+    count = above.sum(axis=1)
+    crossing = ((count == 1) | (count == 2)) & np.isfinite(values).all(axis=1)
+    v, c, a = values[crossing], vertices[faces[crossing]], above[crossing]
+    lone = np.where(a.sum(axis=1) == 1, np.argmax(a, axis=1), np.argmin(a, axis=1))
+    rows = np.arange(len(v))
+    points = []
+    for step in (1, 2):
+        other = (lone + step) % 3
+        t = (level - v[rows, lone]) / (v[rows, other] - v[rows, lone])
+        points.append(c[rows, lone] + t[:, None] * (c[rows, other] - c[rows, lone]))
+    return points[0], points[1]
+
+
+def _ring_length(vertices, faces, field, level) -> float:
+    start, end = isocontour_segments(vertices, faces, field, level)
+    return float(np.linalg.norm(end - start, axis=1).sum())
+
+
+def ring_flatness(vertices, faces, field, level) -> float:
+    """How flat the isocontour at ``level`` is: √(λ1/λ2) of its length-weighted second moments
+    (1 for a circle, large for the thin loop around a flat sheet such as an ear)."""
+    start, end = isocontour_segments(vertices, faces, field, level)
+    length = np.linalg.norm(end - start, axis=1)
+    if length.sum() <= 0:
+        return 1.0
+    middle = 0.5 * (start + end)
+    weights = length / length.sum()
+    centred = middle - weights @ middle
+    eigenvalues = np.sort(np.linalg.eigvalsh((centred * weights[:, None]).T @ centred))[::-1]
+    return float(np.sqrt(eigenvalues[0] / max(eigenvalues[1], 1e-30)))
+
+@dataclass
+class Extremities:
+    """Tips of protrusions (AGD maxima above the feature floor, most persistent first), their
+    relative persistence and AGD, and the geodesic distance field of each."""
+
+    vertices: np.ndarray
+    persistence: np.ndarray
+    agd: np.ndarray
+    distance: dict[int, np.ndarray]
+    contrast: float = 1.0        # AGD range / mean AGD: how far anything sticks out
+
+    @property
+    def candidates(self) -> np.ndarray:
+        """Indices (into ``vertices``) of the prominent tips the feet, head and tail are chosen from."""
+        return np.flatnonzero(self.persistence >= CANDIDATE_PERSISTENCE)[:MAX_CANDIDATES]
+
+
+def read_extremities(graph, mass) -> Extremities:
+    """The tips of the mesh's protrusions with their geodesic distance fields."""
+    agd = average_geodesic_distance(graph, mass)
+    span = float(np.ptp(agd)) or 1.0
+    tips, persistence = persistent_maxima(agd, graph)
+    keep = persistence >= FEATURE_PERSISTENCE * span
+    tips, persistence = tips[keep], persistence[keep] / span
+    return Extremities(tips, persistence, (agd[tips] - agd.min()) / span, geodesic_fields(graph, tips),
+                       span / max(float(agd.mean()), 1e-300))
+
+
+@dataclass
+class FeetChoice:
+    fore_pair: tuple[int, int]      # vertex ids; which pair is fore is decided later (ends)
+    other_pair: tuple[int, int]
+    margin: float
+    ground: np.ndarray | None       # normal of the plane the feet stand on, if they do
+    terms: dict[str, float]
+
+
+def choose_feet(extremities: Extremities, vertices, faces, mass, up=None) -> FeetChoice:
+    """The two pairs of feet (see the module's step 2), or a SegmentationError saying why not."""
+    index = extremities.candidates
+    if extremities.contrast < MIN_CONTRAST:
+        raise SegmentationError(
+            "no legs or feet stick out of this mesh (it is too compact); it does not look like a quadruped "
+            "(segment it by hand: allorules segment MESH --patches 24 --png patches.png and a merge file)")
+    if len(index) < 4:
+        raise SegmentationError(
+            f"found only {len(index)} limb-like extremities where a quadruped has at least four feet; this mesh "
+            "does not look like a quadruped (segment it by hand: allorules segment MESH --patches 24 --png patches.png "
+            "and a merge file)")
+    d = [[extremities.distance[int(a)][int(b)] for b in extremities.vertices[index]] for a in extremities.vertices[index]]
+    flatness = np.array([ring_flatness(vertices, faces, extremities.distance[int(t)],
+                                       RING_SHARE * min(d[k][j] for j in range(len(index)) if j != k))
+                         for k, t in enumerate(extremities.vertices[index])])
+    tips = _Tips(extremities.vertices[index], extremities.persistence[index], extremities.agd[index], flatness)
+    hypotheses = _feet_hypotheses(tips, d, vertices, mass, up)
+    best = hypotheses[0]
+    margin = hypotheses[1].cost - best.cost if len(hypotheses) > 1 else np.inf
+    (p, q), (r, s) = best.pairs
+    if best.cost > 1.5:
+        raise SegmentationError(
+            "no four extremities make a quadruped's two pairs of legs on this mesh (the best guess costs "
+            f"{best.cost:.2f}); {SETTLE}")
+    if margin < FEET_MARGIN:
+        raise SegmentationError(
+            f"cannot tell which four extremities are the feet (two guesses within a margin of {margin:.2f}); "
+            f"{SETTLE}")
+    feet = tips.vertices[[p, q, r, s]]
+    centroid = np.average(vertices, axis=0, weights=mass)
+    ground = _ground_plane(vertices[feet], vertices, centroid, up)
+    return FeetChoice((int(feet[0]), int(feet[1])), (int(feet[2]), int(feet[3])), float(margin), ground,
+                      dict(best.terms))
+
+
+# ---------------------------------------------------------------- ends: head or tail
+
+@dataclass
+class End:
+    """One end of the body: its pair of feet, its girdle (the vertex where the pair branches off
+    the spine), the non-leg surface beyond it and the tips there."""
+
+    pair: tuple[int, int]
+    girdle: int
+    centre: np.ndarray          # centre of the pair's leg tops (inside the body)
+    region: np.ndarray          # boolean: non-leg vertices beyond the girdle
+    area: float
+    tips: list[int]             # tips beyond the girdle, not on a leg
+    main_tip: int | None        # the end protrusion's tip (nose or tail tip)
+    mirror_pairs: list[tuple[int, int]]
+    thickness: float            # girth of the end protrusion part-way along it (0 without one)
+    protrudes: bool = False     # a prominent tip (not a bump) sticks out of this end
+    features: dict[int, str] = field(default_factory=dict)   # tip → "flat" (ear-like) or "thin" (horn-like)
+
+
+def leg_top_distances(graph, legs: np.ndarray, feet) -> dict[int, np.ndarray]:
+    """For each foot, the geodesic distance over the body without its legs from the top of that
+    foot's leg (the ring of non-leg vertices next to it); legs that touch (knees) make no shortcut."""
+    body = legs < 0
+    index = np.flatnonzero(body)
+    local = np.full(len(legs), -1)
+    local[index] = np.arange(len(index))
+    sub = graph[index][:, index]
+    fields = {}
+    for foot in feet:
+        leg = np.flatnonzero(legs == foot)
+        ring = np.unique(graph[leg].indices)
+        ring = ring[body[ring]]
+        field = np.full(len(legs), np.inf)
+        if len(ring):
+            field[index] = dijkstra(sub, indices=local[ring], min_only=True)
+        fields[int(foot)] = field
+    return fields
+
+
+def _girdle(top, pair, other) -> int:
+    """The body vertex between the pair's leg tops nearest the other pair (where the pair's legs
+    branch off the spine)."""
+    a, b = pair
+    c, e = other
+    score = top[a] + top[b] + 0.1 * (top[c] + top[e])
+    return int(np.argmin(score))
+
+
+def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, second_pair, vertices, faces, mass,
+              ground=None):
+    """The two ends (:class:`End`), ``first_pair``'s first.
+
+    Each girdle's plane passes through the centre of the pair's leg tops across the spine (the line
+    between the two pairs' centres); an end is the body (without legs) beyond it: head, neck and
+    breast at one end, rump and tail at the other. Cut along the longest loop of each plane, a
+    piece that lies mostly beyond one plane is that end's even where it reaches across the other
+    plane (a tail curled forward over the back stays with the rump). ``ground``: the normal of the
+    plane the animal stands on, if it does; the spine is then taken level.
+    """
+    girdles = (_girdle(top, first_pair, second_pair), _girdle(top, second_pair, first_pair))
+    # The spine's direction: between the centres of the two pairs' leg tops (``leg_tops``: where
+    # each leg joins the body; steadier than two points on the underside when the legs are spread).
+    centres = [np.mean([leg_tops[foot] for foot in pair], axis=0) for pair in (first_pair, second_pair)]
+    chord = centres[0] - centres[1]
+    if ground is not None:   # standing: the spine runs level (legs cut at different heights do not tilt it)
+        chord = chord - (chord @ ground) * ground
+    axis = chord / max(np.linalg.norm(chord), 1e-300)
+    body = legs < 0
+    body_faces = faces   # the whole section: the plane may run through the legs' tops
+    pairs = _face_pairs(body_faces)
+    cut_edges = []
+    sides = []
+    for point, normal in ((centres[0], axis), (centres[1], -axis)):
+        side = (vertices - point) @ normal > 0
+        sides.append(side)
+        loop = _torso_loop(vertices, body_faces, pairs, point, normal)
+        if loop is None:
+            continue
+        loop_faces = body_faces[loop]
+        edges = directed_edges(loop_faces)
+        cut_edges.append(edges[side[edges[:, 0]] != side[edges[:, 1]]])
+    kept = graph
+    if cut_edges:
+        edges = np.concatenate(cut_edges)
+        cut = coo_matrix((np.ones(2 * len(edges)), (np.concatenate([edges[:, 0], edges[:, 1]]),
+                                                     np.concatenate([edges[:, 1], edges[:, 0]]))), shape=graph.shape).tocsr()
+        kept = (graph - graph.multiply(cut > 0)).tocsr()
+        kept.eliminate_zeros()
+    parts = vertex_components(kept, body)
+    # A piece cut free that lies mostly beyond one girdle belongs to that end, even where it
+    # reaches across the other girdle's plane (a tail curled forward over the back); everything
+    # else beyond a girdle's plane is that end's (also where a hole in the mesh leaves a loop open).
+    owner = np.full(len(vertices), -1)
+    for part in np.unique(parts[body]):
+        members = parts == part
+        total = mass[members].sum()
+        beyond = [mass[members & sides[k]].sum() for k in range(2)]
+        for k in range(2):   # (a piece reaching far beyond both planes is a loop left open: no owner)
+            if beyond[k] > 0.5 * total and beyond[1 - k] < 0.25 * beyond[k]:
+                owner[members] = k
+    feet = set(first_pair) | set(second_pair)
+    ends = []
+    for k, pair in enumerate((first_pair, second_pair)):
+        region = sides[k] & body & (owner != 1 - k)
+        ends.append(_read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet))
+    return ends[0], ends[1]
+
+
+def _torso_loop(vertices, faces, pairs, point, normal):
+    """Face indices of the longest loop of the plane section through ``point`` (⟂ ``normal``):
+    the one around the torso, or None."""
+    side = (vertices - point) @ normal
+    above = side[faces] > 0
+    crossing = above.any(axis=1) & ~above.all(axis=1)
+    crossed = np.flatnonzero(crossing)
+    if len(crossed) < 3:
+        return None
+    local = np.full(len(faces), -1)
+    local[crossed] = np.arange(len(crossed))
+    joined = pairs[crossing[pairs[:, 0]] & crossing[pairs[:, 1]]]
+    ring = coo_matrix((np.ones(len(joined)), (local[joined[:, 0]], local[joined[:, 1]])), shape=(len(crossed), len(crossed)))
+    _, loop_of = connected_components(ring, directed=False)
+    corners = vertices[faces[crossed]]
+    size = np.linalg.norm(corners.max(axis=1) - corners.min(axis=1), axis=1)   # a face's extent ~ its share of the loop
+    length = np.bincount(loop_of, weights=size)
+    return crossed[loop_of == int(np.argmax(length))]
+
+
+def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, mass, feet) -> End:
+    distance = extremities.distance
+    area = float(mass[region].sum())
+    a, b = pair
+    tips = [int(t) for t in extremities.vertices if region[t] and int(t) not in feet]
+    reach = {t: float(distance[t][girdle]) for t in tips}
+    # Rings around each tip a tenth of its way to the girdle: a horn is a thin tube (its ring much
+    # smaller than the others'), an ear a flat sheet; the end's main tip (a nose, a tail tip) is the
+    # most prominent tip that is neither.
+    ring = {t: _ring_length(vertices, faces, distance[t], 0.1 * reach[t]) for t in tips}
+    widest = max(ring.values(), default=0.0)
+    appendage = {t: ring[t] < APPENDAGE_RING * widest
+                 or ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE for t in tips}
+    persistence = {int(t): float(p) for t, p in zip(extremities.vertices, extremities.persistence)}
+    agd = {int(t): float(g) for t, g in zip(extremities.vertices, extremities.agd)}
+    main_tip = None
+    if tips:
+        plain = [t for t in tips if not appendage[t]] or tips
+        main_tip = max(plain, key=lambda t: persistence[t])
+    # Mirror pairs: two prominent tips alike in AGD, reach and prominence, well apart (ears, horns).
+    mirror_pairs = []
+    for t1, t2 in itertools.combinations(tips, 2):
+        if min(persistence[t1], persistence[t2]) < MIRROR_PERSISTENCE:
+            continue
+        alike = (abs(agd[t1] - agd[t2]) < MIRROR_AGD and abs(reach[t1] - reach[t2]) < MIRROR_REACH * max(reach[t1], reach[t2])
+                 and min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2]))
+        if alike and distance[t1][t2] > MIRROR_SPACING * max(reach[t1], reach[t2]):
+            mirror_pairs.append((t1, t2))
+    # How thick the end's protrusion gets part-way along it: a tail stays thin, a head does not.
+    thickness = 0.0
+    if main_tip is not None:
+        thickness = max(_ring_length(vertices, faces, distance[main_tip], f * reach[main_tip]) for f in (0.1, 0.2, 0.3))
+    protrudes = any(persistence[t] >= CANDIDATE_PERSISTENCE for t in tips)
+    # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip.
+    features = {}
+    for t in set([t for t in tips if appendage[t]] + [t for pair_ in mirror_pairs for t in pair_]):
+        if t != main_tip:
+            flat = ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE
+            thin = ring[t] < APPENDAGE_RING * widest
+            features[t] = "thin" if thin and not flat else "flat"
+    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, protrudes, features)
+
+
+@dataclass
+class EndsDecision:
+    head: End
+    tail: End
+    cues: dict[str, float]          # evidence for the chosen head end, each in [−1, 1]
+    margin: float                   # summed evidence (≥ 0 for the chosen end)
+
+
+def decide_head(first: End, second: End, forward_hint=None, vertices=None) -> EndsDecision:
+    """Which end is the head (module docstring, step 3); refuses when the cues do not agree.
+
+    ``forward_hint`` (the user's ``--forward``): the end whose girdle lies further along it is the
+    head, whatever the cues say (they are still reported).
+    """
+    cues = {}
+    if first.area > 0 and second.area > 0:
+        cues["mass"] = float(np.clip(np.log2(first.area / second.area), -1.0, 1.0))
+    else:
+        cues["mass"] = 1.0 if first.area > second.area else -1.0
+    has_first, has_second = bool(first.mirror_pairs), bool(second.mirror_pairs)
+    cues["features"] = float(has_first) - float(has_second)
+    if first.protrudes and second.protrudes:
+        cues["thickness"] = float(np.clip(np.log2(first.thickness / second.thickness), -1.0, 1.0))
+    else:
+        cues["thickness"] = 0.0
+    cues["presence"] = float(first.protrudes) - float(second.protrudes)
+    total = sum(cues.values())
+    if forward_hint is not None and vertices is not None:
+        along = (first.centre - second.centre) @ np.asarray(forward_hint, dtype=float)
+        head_first = along > 0
+    else:
+        if abs(total) < HEAD_TAIL_MARGIN:
+            raise SegmentationError(
+                f"cannot tell the head from the tail (cues {_cue_text(cues)}, summed {abs(total):.2f} < "
+                f"{HEAD_TAIL_MARGIN}); {SETTLE}")
+        against = [name for name, value in cues.items() if value * total < 0 and abs(value) >= STRONG_CUE]
+        agreeing = [name for name, value in cues.items() if value * total > 0 and abs(value) >= AGREEING_CUE]
+        if len(agreeing) < 2:
+            raise SegmentationError(
+                f"cannot tell the head from the tail: only {', '.join(agreeing) or 'no'} cue speaks for one end "
+                f"({_cue_text(cues)}), at least two must; {SETTLE}")
+        if against:
+            raise SegmentationError(
+                f"head and tail cues disagree ({_cue_text(cues)}: {', '.join(against)} against the others); {SETTLE}")
+        head_first = total > 0
+    if head_first:
+        return EndsDecision(first, second, cues, float(total))
+    return EndsDecision(second, first, {name: -value for name, value in cues.items()}, float(-total))
+
+
+def _cue_text(cues: dict[str, float]) -> str:
+    return ", ".join(f"{name} {value:+.2f}" for name, value in cues.items())
+
+
+SPINE_MIN = 0.2   # spine / mean leg below this: fore and hind pairs cannot be told apart
+
+
+def confidence(choice: FeetChoice, ends: EndsDecision, forward_given: bool) -> dict[str, float]:
+    """Named margins in [0, 1]: each decision's margin over twice its refusal threshold (so 0.5
+    is exactly at the threshold, 1 twice as clear or more); 1 for a decision the user made."""
+    def scaled(margin, threshold):
+        return float(np.clip(margin / (2.0 * threshold), 0.0, 1.0))
+
+    spine_ratio = 1.0 - choice.terms.get("spine", 0.0)   # 1 at SPINE_RATIO and above
+    return {
+        "feet": scaled(choice.margin, FEET_MARGIN),
+        "fore-hind pairs": float(np.clip(spine_ratio, 0.0, 1.0)),
+        "head-tail": 1.0 if forward_given else scaled(ends.margin, HEAD_TAIL_MARGIN),
+    }
+
+
+# ---------------------------------------------------------------- helpers shared with the labeller
+
+AGD_SOURCES = 24            # farthest-point sources for the average geodesic distance
+
+
+def average_geodesic_distance(graph: sparse.csr_matrix, mass: np.ndarray, sources: int = AGD_SOURCES) -> np.ndarray:
+    """Mean graph-geodesic distance from a farthest-point sample of ``sources`` vertices."""
+    n = graph.shape[0]
+    start = int(np.argmax(mass))  # deterministic, independent of vertex order only up to ties
+    chosen = [start]
+    distance = dijkstra(graph, indices=start)
+    rows = [distance]
+    nearest = distance.copy()
+    for _ in range(min(sources, n) - 1):
+        nxt = int(np.argmax(nearest))
+        chosen.append(nxt)
+        distance = dijkstra(graph, indices=nxt)
+        rows.append(distance)
+        nearest = np.minimum(nearest, distance)
+    return np.mean(rows, axis=0)
+
+
+def persistent_maxima(values: np.ndarray, graph: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """Local maxima of a vertex function and their persistence (super-level-set union–find).
+
+    Sweeping downwards, each maximum starts a component; when two components meet at a
+    vertex, the one born lower dies there and its persistence is birth − that value (elder rule).
+    The global maximum's persistence is its value minus the global minimum.
+    """
+    order = np.argsort(-values, kind="stable")
+    parent = np.full(len(values), -1, dtype=np.int64)
+    birth_vertex = {}
+    persistence = {}
+    indptr, indices = graph.indptr, graph.indices
+
+    for v in order:
+        roots = {_find(parent, u) for u in indices[indptr[v]:indptr[v + 1]] if parent[u] >= 0}
+        if not roots:
+            parent[v] = v
+            birth_vertex[v] = v
+            continue
+        roots = sorted(roots, key=lambda r: -values[birth_vertex[r]])
+        survivor = roots[0]
+        parent[v] = survivor
+        for other in roots[1:]:
+            tip = birth_vertex[other]
+            persistence[tip] = values[tip] - values[v]
+            parent[other] = survivor
+    for root in {_find(parent, v) for v in range(len(values))}:
+        tip = birth_vertex[root]
+        persistence[tip] = values[tip] - values.min()
+    tips = np.array(sorted(persistence, key=lambda t: -persistence[t]), dtype=np.int64)
+    return tips, np.array([persistence[t] for t in tips])
+
+
+def _find(parent: np.ndarray, x: int) -> int:
+    """Root of x in a union–find forest stored in ``parent`` (path compression on the way)."""
+    root = x
+    while parent[root] != root:
+        root = parent[root]
+    while parent[x] != root:
+        parent[x], x = root, parent[x]
+    return root
+
+
+def _support_normal(points, centroid, up):
+    if up is not None:
+        return up if (centroid - points.mean(axis=0)) @ up > 0 else None
+    centred = points - points.mean(axis=0)
+    _, singular, axes = np.linalg.svd(centred)
+    if singular[1] < 1e-9:
+        return None
+    normal = axes[2]
+    return normal if (centroid - points.mean(axis=0)) @ normal > 0 else -normal
+
+
+def _inside_quad(points, centroid, normal) -> bool:
+    """Whether the centroid projects inside the convex hull of the four feet (on their plane)."""
+    basis_u = np.cross(normal, [1.0, 0.0, 0.0])
+    if np.linalg.norm(basis_u) < 0.1:
+        basis_u = np.cross(normal, [0.0, 1.0, 0.0])
+    basis_u /= np.linalg.norm(basis_u)
+    basis_v = np.cross(normal, basis_u)
+    flat = np.column_stack([points @ basis_u, points @ basis_v])
+    target = np.array([centroid @ basis_u, centroid @ basis_v])
+    hull = flat[_convex_hull_2d(flat)]
+    signs = []
+    for a, b in zip(hull, np.roll(hull, -1, axis=0)):
+        edge, offset = b - a, target - a
+        signs.append(edge[0] * offset[1] - edge[1] * offset[0])
+    signs = np.array(signs)
+    return bool(np.all(signs >= 0) or np.all(signs <= 0))
+
+
+def _convex_hull_2d(points):
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+
+    def cross(o, a, b):
+        return (points[a][0] - points[o][0]) * (points[b][1] - points[o][1]) - (points[a][1] - points[o][1]) * (points[b][0] - points[o][0])
+
+    lower, upper = [], []
+    for i in order:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], i) <= 0:
+            lower.pop()
+        lower.append(i)
+    for i in reversed(order):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], i) <= 0:
+            upper.pop()
+        upper.append(i)
+    return lower[:-1] + upper[:-1]
+
+
+def _face_pairs(faces):
+    """Pairs of faces sharing an edge (rows of two face ids)."""
+    edges = corner_edges(faces)
+    face_of = np.tile(np.arange(len(faces)), 3)
+    key = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
+    order = np.argsort(key, kind="stable")
+    key, face_of = key[order], face_of[order]
+    same = key[1:] == key[:-1]
+    return np.column_stack([face_of[:-1][same], face_of[1:][same]])
