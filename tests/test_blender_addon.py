@@ -34,12 +34,14 @@ def blender():
 
 @pytest.fixture(scope="module")
 def scaled(blender):
-    """One ruleset run, as a script calls it: ``bpy.ops.allorules.scale(ruleset="quadruped", mass_ratio=2.0)``."""
+    """One ruleset run, as a script calls it: ``bpy.ops.allorules.scale(ruleset="quadruped", mass_ratio=2.0)``,
+    with the default basis (a 40-mode basis of this 2,000-vertex horse cannot also hold the neck
+    isometric and reaches mass x1.977: refused, as it should be)."""
     original = quadruped_object("Horse")
     data_before = np.array([vertex.co[:] for vertex in original.data.vertices])
     evaluated_before = world_positions(original, evaluated=True)
     objects_before = set(bpy.data.objects)
-    result = bpy.ops.allorules.scale(ruleset="quadruped", mass_ratio=2.0, modes=40)
+    result = bpy.ops.allorules.scale(ruleset="quadruped", mass_ratio=2.0)
     new = set(bpy.data.objects) - objects_before
     return dict(result=result, original=original, data_before=data_before, evaluated_before=evaluated_before, new=new)
 

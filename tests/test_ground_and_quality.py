@@ -55,6 +55,24 @@ def test_scaled_animal_stands_on_the_inputs_ground(generated_horse, factor):
         assert np.allclose(place_on_ground(body, scaled, anchor="centroid"), scaled)
 
 
+def test_nothing_of_the_placed_output_goes_below_the_inputs_floor(generated_horse):
+    """Eq. 9 can bend a leg so that a point beside a foot's contact ends lowest (the Blender
+    add-on's displaced horse, 0.5 % of its height): the floor is the body's lowest point, on the
+    input and on the output alike."""
+    body = generated_horse.body()
+    up = body.frame.up
+    height = float(np.ptp(body.vertices @ up))
+    before = ground_contact(body)
+    assert before.height == pytest.approx(float((body.vertices @ up).min()))
+    in_feet = np.zeros(len(body.vertices), dtype=bool)
+    in_feet[np.concatenate(before.feet)] = True
+    beside = np.flatnonzero(~in_feet)[np.argmin((body.vertices @ up)[~in_feet])]
+    scaled = 1.26 * body.vertices
+    scaled[beside] -= (float(scaled[beside] @ up) - float((scaled @ up).min()) + 0.01 * height) * up
+    placed = place_on_ground(body, scaled)
+    assert float((placed @ up).min()) == pytest.approx(before.height, abs=1e-9 * height)
+    assert np.linalg.norm(before.at(placed).anchor - before.anchor) <= 0.005 * height
+
 def test_ground_needs_an_up_direction():
     mesh = trimesh.creation.icosphere(2)
     with pytest.raises(GroundError, match="up"):

@@ -10,7 +10,9 @@ the scaling is then about the ground contact, the centroid of the feet's lowest 
 * Each foot is the end of a limb part (the vertices beyond its last cross-section, as
   :class:`allorules.solve.posture.FootContact` takes them); its contact is its lowest vertex along up.
   A body without labelled limbs stands on its lowest vertices along up.
-* The ground plane passes through the lowest contact; the anchor is the mean of the contacts,
+* The ground plane passes through the body's lowest point along up (on a standing animal, the
+  lowest contact; Eq. 9 can bend a leg so that a point beside a foot's contact ends lowest, and
+  nothing of the output may go below the input's floor); the anchor is the mean of the contacts,
   projected on that plane.
 
 ``anchor="centroid"`` keeps today's behaviour (the output as the scaling left it, centroid in
@@ -38,8 +40,8 @@ class GroundError(AllorulesError):
 @dataclass(frozen=True)
 class GroundContact:
     """Where a body touches the ground: ``up`` (unit, ground → back), the vertex sets of its
-    ``feet``, each foot's lowest vertex ``contacts``, the ground's ``height`` (x·up of the lowest
-    contact) and the ``anchor`` (the contacts' mean, on the ground plane)."""
+    ``feet``, each foot's lowest vertex ``contacts``, the ground's ``height`` (x·up of the body's lowest
+    point) and the ``anchor`` (the contacts' mean, on the ground plane)."""
 
     up: np.ndarray
     feet: tuple[np.ndarray, ...]
@@ -58,8 +60,7 @@ class GroundContact:
 
 def _contact(vertices: np.ndarray, up: np.ndarray, feet: tuple[np.ndarray, ...]) -> GroundContact:
     contacts = np.array([vertices[foot[np.argmin(vertices[foot] @ up)]] for foot in feet])
-    heights = contacts @ up
-    height = float(heights.min())
+    height = float((vertices @ up).min())
     mean = contacts.mean(axis=0)
     anchor = mean - (float(mean @ up) - height) * up
     return GroundContact(up, feet, contacts, height, anchor)
