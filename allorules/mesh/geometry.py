@@ -102,3 +102,17 @@ def plane_section(vertices: np.ndarray, faces: np.ndarray, point: np.ndarray,
     flip = np.einsum("ij,ij->i", end - start, np.cross(normal, face_normals(vertices, faces[crossed]))) < 0
     start, end = np.where(flip[:, None], end, start), np.where(flip[:, None], start, end)
     return start, end, crossed
+
+
+def plane_section_loops(vertices: np.ndarray, faces: np.ndarray, adjacency, point: np.ndarray,
+                        normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`plane_section`'s segments grouped into loops: crossed faces that share an edge
+    (``adjacency``: :func:`allorules.mesh.topology.face_adjacency` of ``faces``) are on one loop.
+
+    Returns (starts, ends, crossed, loop_of): the segments, their faces, and each one's loop
+    (ids 0 … k−1)."""
+    from scipy.sparse.csgraph import connected_components
+
+    start, end, crossed = plane_section(vertices, faces, point, normal)
+    _, loop_of = connected_components(adjacency[crossed][:, crossed], directed=False)
+    return start, end, crossed, loop_of

@@ -36,10 +36,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sparse
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 
 from allorules.errors import SegmentationError
-from allorules.mesh.topology import corner_edges, directed_edges, vertex_components
+from allorules.mesh.geometry import plane_section_loops
+from allorules.mesh.topology import (
+    directed_edges,
+    face_adjacency,
+    vertex_components,
+)
 
 CANDIDATE_PERSISTENCE = 0.08   # of the AGD range: prominent tips (feet, head, tail, big horns)
 FEATURE_PERSISTENCE = 0.01     # of the AGD range: faint tips (ears, small horns, the nose behind horns)
@@ -363,13 +368,13 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     axis = chord / max(np.linalg.norm(chord), 1e-300)
     body = legs < 0
     body_faces = faces   # the whole section: the plane may run through the legs' tops
-    pairs = _face_pairs(body_faces)
+    adjacency = face_adjacency(body_faces)
     cut_edges = []
     sides = []
     for point, normal in ((centres[0], axis), (centres[1], -axis)):
         side = (vertices - point) @ normal > 0
         sides.append(side)
-        loop = _torso_loop(vertices, body_faces, pairs, point, normal)
+        loop = _torso_loop(vertices, body_faces, adjacency, point, normal)
         if loop is None:
             continue
         loop_faces = body_faces[loop]
@@ -402,20 +407,12 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     return ends[0], ends[1]
 
 
-def _torso_loop(vertices, faces, pairs, point, normal):
+def _torso_loop(vertices, faces, adjacency, point, normal):
     """Face indices of the longest loop of the plane section through ``point`` (⟂ ``normal``):
     the one around the torso, or None."""
-    side = (vertices - point) @ normal
-    above = side[faces] > 0
-    crossing = above.any(axis=1) & ~above.all(axis=1)
-    crossed = np.flatnonzero(crossing)
+    _, _, crossed, loop_of = plane_section_loops(vertices, faces, adjacency, point, normal)
     if len(crossed) < 3:
         return None
-    local = np.full(len(faces), -1)
-    local[crossed] = np.arange(len(crossed))
-    joined = pairs[crossing[pairs[:, 0]] & crossing[pairs[:, 1]]]
-    ring = coo_matrix((np.ones(len(joined)), (local[joined[:, 0]], local[joined[:, 1]])), shape=(len(crossed), len(crossed)))
-    _, loop_of = connected_components(ring, directed=False)
     corners = vertices[faces[crossed]]
     size = np.linalg.norm(corners.max(axis=1) - corners.min(axis=1), axis=1)   # a face's extent ~ its share of the loop
     length = np.bincount(loop_of, weights=size)
@@ -646,14 +643,3 @@ def _convex_hull_2d(points):
             upper.pop()
         upper.append(i)
     return lower[:-1] + upper[:-1]
-
-
-def _face_pairs(faces):
-    """Pairs of faces sharing an edge (rows of two face ids)."""
-    edges = corner_edges(faces)
-    face_of = np.tile(np.arange(len(faces)), 3)
-    key = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
-    order = np.argsort(key, kind="stable")
-    key, face_of = key[order], face_of[order]
-    same = key[1:] == key[:-1]
-    return np.column_stack([face_of[:-1][same], face_of[1:][same]])

@@ -31,14 +31,19 @@ import itertools
 
 import numpy as np
 import scipy.sparse as sparse
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 
 from allorules.body import UNLABELLED, Body, Frame, Labelling
 from allorules.errors import SegmentationError
-from allorules.mesh.geometry import vertex_areas
-from allorules.mesh.topology import directed_edges, vertex_components, vertex_graph
+from allorules.mesh.geometry import plane_section_loops, vertex_areas
+from allorules.mesh.topology import (
+    directed_edges,
+    face_adjacency,
+    vertex_components,
+    vertex_graph,
+)
 from allorules.segment import body_plan
-from allorules.segment.body_plan import SUPPORT_TOLERANCE, _face_pairs, _find
+from allorules.segment.body_plan import SUPPORT_TOLERANCE, _find
 from allorules.segment.regions import QUADRUPED_REGIONS
 
 REGIONS = QUADRUPED_REGIONS
@@ -332,7 +337,7 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
     indptr, indices = graph.indptr, graph.indices
     is_foot = np.zeros(n, dtype=bool)
     is_foot[feet] = True
-    pairs = None
+    adjacency = None
     claimed = np.zeros((len(feet), n), dtype=bool)
     for k, foot in enumerate(int(f) for f in feet):
         axis = axes[foot]
@@ -356,9 +361,9 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
                 others = [r for r in roots if r != mine[0] and (holds_foot[r] or area[r] >= substantial)]
                 if others:
                     if all(holds_foot[r] for r in others):
-                        if pairs is None:
-                            pairs = _face_pairs(faces)
-                        touching = _legs_touch(vertices, faces, pairs, height, axis, parent, mine + others, v)
+                        if adjacency is None:
+                            adjacency = face_adjacency(faces)
+                        touching = _legs_touch(vertices, faces, adjacency, height, axis, parent, mine + others, v)
                     else:
                         touching = False
                     if not touching:
@@ -396,7 +401,7 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
     return legs
 
 
-def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bool:
+def _legs_touch(vertices, faces, adjacency, height, up, parent, foot_roots, v) -> bool:
     """Whether the feet's parts meeting at vertex v only touch: in sections across ``up`` (the
     sweep's axis; ``height`` is along it) a little
     (two typical edge heights) and one leg radius above v, the loops nearest each part's top are
@@ -414,7 +419,7 @@ def _legs_touch(vertices, faces, pairs, height, up, parent, foot_roots, v) -> bo
         loops, radius = set(), 0.0
         for top, top_height in tops:
             point = top + (height[v] + rise - top_height) * up
-            section = _section_loop(vertices, faces, pairs, point, up)
+            section = _section_loop(vertices, faces, adjacency, point, up)
             if section is None:
                 return False
             loops.add(int(section[2].min()))   # loops are disjoint sets of faces: the smallest names one
@@ -450,9 +455,9 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     labels[in_rest & (along < middle)] = ABDOMEN
     head_cut, neck_cut = _neck_cuts(vertices, faces, graph, rest, head_tip, np.flatnonzero(labels == FORELIMBS))
     if head_cut is not None:
-        pairs = _face_pairs(faces)
+        adjacency = face_adjacency(faces)
         for (point, normal), region in ((neck_cut, NECK), (head_cut, HEAD)):
-            beyond = _beyond_loop(vertices, faces, graph, pairs, point, normal, in_rest, head_tip)
+            beyond = _beyond_loop(vertices, faces, graph, adjacency, point, normal, in_rest, head_tip)
             if beyond is None or mass[beyond & (along < middle)].sum() > LEAK_SHARE * mass[beyond].sum():
                 continue   # the loop does not cut the front off (or leaks into the body): leave it
             labels[beyond] = region
@@ -574,14 +579,14 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
         labels[region] = index
 
 
-def _beyond_loop(vertices, faces, graph, pairs, point, normal, allowed, tip):
+def _beyond_loop(vertices, faces, graph, adjacency, point, normal, allowed, tip):
     """Vertices on the tip's side of the section loop through ``point`` (⟂ ``normal``).
 
     Only the loop around ``point`` cuts, not the whole plane: the graph loses the edges that
     cross the plane inside that loop's faces, and the tip's connected part (within
     ``allowed``) is returned as a boolean mask, or None if the loop is not found.
     """
-    section = _section_loop(vertices, faces, pairs, point, normal)
+    section = _section_loop(vertices, faces, adjacency, point, normal)
     if section is None:
         return None
     side = (vertices - point) @ normal > 0
@@ -692,17 +697,17 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     peaks = [k for k in range(1, len(levels) - 1)
              if turn[k] >= turn[k - 1] and turn[k] > turn[k + 1] and turn[k] >= 0.5 * turn.max()]
     peaks.sort(key=lambda k: -turn[k])
-    pairs = _face_pairs(faces)
+    adjacency = face_adjacency(faces)
     found = []
     for bend in peaks:
         neck_direction = centroids[bend + w] - centroids[bend]
         if not np.linalg.norm(neck_direction) > 0:
             continue
         neck_direction = neck_direction / np.linalg.norm(neck_direction)
-        neck = _follow_neck(vertices, faces, pairs, centroids[bend], neck_direction, step, span)
+        neck = _follow_neck(vertices, faces, adjacency, centroids[bend], neck_direction, step, span)
         if neck is None:   # the plane at the bend may cut the back of the head too: start a little down the neck
             later = min(bend + w // 2, len(centroids) - 1)
-            neck = _follow_neck(vertices, faces, pairs, centroids[later], neck_direction, step, span)
+            neck = _follow_neck(vertices, faces, adjacency, centroids[later], neck_direction, step, span)
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
@@ -721,7 +726,7 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     return (throat, -neck_direction), (base_point, -base_direction)
 
 
-def _follow_neck(vertices, faces, pairs, start, direction, step, span):
+def _follow_neck(vertices, faces, adjacency, start, direction, step, span):
     """Follow a tube from ``start`` along ``direction``: (base point, base direction, length,
     narrowing) of the neck it finds, or None; length and narrowing (the distance to the
     narrowest section) in radii of the narrowest section.
@@ -738,7 +743,7 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
     travelled, radii, centres, directions = [], [], [], []
     distance_so_far = 0.0
     for _ in range(4 * PROFILE_LEVELS):
-        section = _section_loop(vertices, faces, pairs, point, direction)
+        section = _section_loop(vertices, faces, adjacency, point, direction)
         if section is None:
             break
         area, centre, _ = section
@@ -777,40 +782,20 @@ def _follow_neck(vertices, faces, pairs, start, direction, step, span):
             travelled[narrowest] / radii[narrowest], throat)
 
 
-def _section_loop(vertices, faces, pairs, point, normal):
+def _section_loop(vertices, faces, adjacency, point, normal):
     """(area, centre, faces) of the loop of the plane section through ``point`` (⟂ ``normal``)
     nearest ``point``, or None where the plane misses the surface.
 
-    The faces the plane crosses form one ring per loop (joined through shared edges); the loop
-    around ``point`` is taken (the smallest, if nested), else the loop whose length-weighted
-    centre is nearest ``point``. Area = |½ Σ (p_k − o) × (q_k − o) · n|
-    over its oriented segments p_k → q_k (o any point of the plane: ``point``).
+    The faces the plane crosses form one ring per loop (joined through shared edges,
+    :func:`allorules.mesh.geometry.plane_section_loops`); the loop around ``point`` is taken (the
+    smallest, if nested), else the loop whose length-weighted centre is nearest ``point``.
+    Area = |½ Σ (p_k − o) × (q_k − o) · n| over its oriented segments p_k → q_k (o any point of
+    the plane: ``point``).
     """
-    side = (vertices - point) @ normal
-    above = side[faces] > 0
-    crossing = above.any(axis=1) & ~above.all(axis=1)
-    crossed = np.flatnonzero(crossing)
+    normal = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    start, end, crossed, loop_of = plane_section_loops(vertices, faces, adjacency, point, normal)
     if len(crossed) < 3:
         return None
-    local = np.full(len(faces), -1)
-    local[crossed] = np.arange(len(crossed))
-    joined = pairs[crossing[pairs[:, 0]] & crossing[pairs[:, 1]]]
-    ring = sparse.coo_matrix((np.ones(len(joined)), (local[joined[:, 0]], local[joined[:, 1]])),
-                             shape=(len(crossed), len(crossed)))
-    _, loop_of = connected_components(ring, directed=False)
-    corners, values = vertices[faces[crossed]], side[faces[crossed]]
-    ends = []
-    for a, b in ((0, 1), (1, 2), (2, 0)):
-        crosses = (values[:, a] > 0) != (values[:, b] > 0)
-        t = np.where(crosses, values[:, a] / np.where(crosses, values[:, a] - values[:, b], 1.0), np.nan)
-        ends.append(corners[:, a] + (corners[:, b] - corners[:, a]) * t[:, None])
-    ends = np.stack(ends, axis=1)
-    order = np.argsort(~np.isfinite(ends[:, :, 0]), axis=1, kind="stable")[:, :2]
-    pair = ends[np.arange(len(ends))[:, None], order]
-    start, end = pair[:, 0], pair[:, 1]
-    face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    flip = np.einsum("ij,ij->i", end - start, np.cross(normal, face_normal)) < 0
-    start, end = np.where(flip[:, None], end, start), np.where(flip[:, None], start, end)
     length = np.linalg.norm(end - start, axis=1)
     middle = 0.5 * (start + end)
     loops = loop_of.max() + 1
