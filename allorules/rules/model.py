@@ -71,17 +71,22 @@ class SolverSettings:
 
 
 OPEN_REGION_SETTINGS = ("isometric", "free")
+OPEN_REGION_HOLDS = ("shape", "soft")    # how an isometric open region is held (allorules/solve/held_regions.py)
 
 
 @dataclass(frozen=True)
 class OpenRegions:
     """What regions no rule measures do (METHOD §10): ``isometric`` (the default) holds each such
-    region's ``measures`` at their isometric exponents as soft energy terms of ``weight``, which a
-    rule of the ruleset on that region replaces; ``free`` leaves the region's α to the solver (the
-    paper). ``regions`` overrides the default per region (appendages such as tail, ears, horns,
-    trunk included, when a segmenter finds them). The terms: allorules/solve/open_regions.py."""
+    region at its input proportions, which a rule of the ruleset on that region replaces; ``free``
+    leaves the region's α to the solver (the paper). ``hold`` says how: ``shape`` (the default) gives
+    the region its input shape scaled isometrically after Eq. 9 (allorules/solve/held_regions.py);
+    ``soft`` holds its ``measures`` at their isometric exponents as soft energy terms of ``weight``
+    (allorules/solve/open_regions.py; also the fallback for a part the shape cannot hold).
+    ``regions`` overrides the default per region (appendages such as tail, ears, horns, trunk
+    included, when a segmenter finds them)."""
 
     default: str = "isometric"
+    hold: str = "shape"
     weight: float = 0.01
     measures: tuple[str, ...] = ("length", "mass")
     regions: Mapping[str, str] = field(default_factory=dict)
@@ -178,7 +183,7 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "transform": solver.transform, "posture": solver.posture, "detail_cutoff": solver.detail_cutoff,
     }
     opened = ruleset.open_regions
-    document["open_regions"] = {"default": opened.default, "weight": opened.weight, "measures": list(opened.measures),
+    document["open_regions"] = {"default": opened.default, "hold": opened.hold, "weight": opened.weight, "measures": list(opened.measures),
                                 "regions": dict(opened.regions)}
     if opened.source:
         document["open_regions"]["source"] = opened.source

@@ -20,6 +20,7 @@ from allorules.rules.find import _registry, find_ruleset, looks_like_path, rules
 from allorules.rules.located_yaml import LocatedDocument, _kind, read_located_yaml
 from allorules.rules.model import (
     DEFAULT_SEGMENTER,
+    OPEN_REGION_HOLDS,
     OPEN_REGION_SETTINGS,
     BodyMassTerm,
     ConstraintUse,
@@ -450,6 +451,14 @@ def _build_open_regions(merged: _Merged, measures: Mapping[str, Any], problems: 
             problems.append(RulesetError(f"open_regions {values['default']!r} is not {choices} (isometric: regions no "
                                          "rule measures keep their proportions; free: the solver may change them)",
                                          where.get("default", whole)))
+    if "hold" in values:
+        if values["hold"] in OPEN_REGION_HOLDS:
+            settings["hold"] = values["hold"]
+        else:
+            holds = " or ".join(repr(choice) for choice in OPEN_REGION_HOLDS)
+            problems.append(RulesetError(f"open_regions.hold {values['hold']!r} is not {holds} (shape: each open region "
+                                         "keeps its input shape, scaled isometrically; soft: energy terms on its "
+                                         "measures)", where.get("hold", whole)))
     if "weight" in values and _check_finite(values["weight"], "open_regions.weight", where.get("weight", whole), problems):
         settings["weight"] = float(values["weight"])
     if "measures" in values:

@@ -55,10 +55,12 @@ from allorules.runs.results import (
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
 from allorules.solve.energy import RESIDUAL_TOLERANCE, cached_measure, energy_terms
+from allorules.solve.held_regions import HeldRegions, hold_regions
 from allorules.solve.open_regions import (
     extra_regions,
     open_region_outcomes,
     open_region_terms,
+    shape_held_regions,
 )
 from allorules.solve.posture import restore_limb_axes, restore_limb_lines
 from allorules.solve.step import solve_step
@@ -152,10 +154,13 @@ def scale_with_ruleset(
 
     current, basis, jacobian, start = initial, None, None, None
     basis_age = 0                                       # steps the current basis has served
-    # Regions no rule measures are held isometric (METHOD §10): soft terms, and an α for each held
+    # Regions no rule measures are held isometric (METHOD §10): by their shape (given their input
+    # shape at the isometric factor after Eq. 9), else by soft terms and an α for each soft-held
     # appendage the ruleset does not list.
-    open_terms, open_notes = open_region_terms(ruleset, initial, registry, measure)
-    appendages = extra_regions(ruleset, initial)
+    held = hold_regions(initial, shape_held_regions(ruleset, initial))
+    open_terms, open_notes = open_region_terms(ruleset, initial, registry, measure, held.regions)
+    appendages = extra_regions(ruleset, initial, held.regions)
+    result.warnings.extend(held.notes)
     result.warnings.extend(open_notes)
     terms = energy_terms(ruleset) + open_terms
     anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
@@ -180,7 +185,7 @@ def scale_with_ruleset(
             return solve_step(current, step_basis_, step_ruleset, registry, ratio, measure=measure, jacobian=jacobian,
                               start=start, on_trial=progress.trial, corrections=corrections,
                               constraint_reference=(initial, reached * ratio), extra_terms=open_terms,
-                              extra_regions=appendages)
+                              extra_regions=appendages, held=held, held_scale=(reached * ratio) ** (1.0 / 3.0))
 
         try:
             solution = solve(_capped(ruleset) if reused else ruleset, basis)
@@ -193,7 +198,7 @@ def scale_with_ruleset(
                 solution = solve(ruleset, basis)
         except ScalingError as error:
             result.body = current
-            _finish(result, initial, ruleset, registry, measure, gauge, open_terms)
+            _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held)
             result.converged = False
             message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
             result.messages.append(message)
@@ -227,7 +232,7 @@ def scale_with_ruleset(
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))
     result.body = current
-    _finish(result, initial, ruleset, registry, measure, gauge, open_terms)
+    _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held)
     return result
 
 
@@ -288,14 +293,15 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
         log.warning("%s", warning)
 
 
-def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, measure, open_terms) -> None:
+def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, measure, open_terms,
+                         held: HeldRegions | None = None) -> None:
     """What each open region achieved (allorules/solve/open_regions.py); a held one that strayed
     beyond the exponent tolerance is a warning, not a failed run (it is a default nobody asked for)."""
     if result.target_mass_ratio == 1.0:
         return
-    held = {term.id for term in open_terms}
+    held_ids = {term.id for term in open_terms}
     result.open_regions = open_region_outcomes(ruleset, registry, initial, final, result.target_mass_ratio, measure,
-                                               held, EXPONENT_TOLERANCE)
+                                               held_ids, EXPONENT_TOLERANCE, held.regions if held else ())
     for outcome in result.open_regions:
         if not outcome.met:
             achieved = "not measured" if outcome.achieved_exponent is None else f"{outcome.achieved_exponent:.3f}"
@@ -303,7 +309,8 @@ def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, 
                                    f"{outcome.isometric_exponent:.3f} (±{outcome.tolerance})")
 
 
-def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=()) -> None:
+def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=(),
+            held: HeldRegions | None = None) -> None:
     """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
     final = _fresh(result.body)
     if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
@@ -336,7 +343,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             result.constraints[key] = float(residual)
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
                 messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
-    _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms)
+    _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
     result.converged = not messages
     result.messages.extend(messages)
     if messages:

@@ -9,7 +9,11 @@ every open region and appendage (neck, tail, ears, horns, trunk):
 
 * :func:`open_regions` — the regions of the ruleset and of the body that no rule measures, with
   their setting (``isometric`` or ``free``, :class:`allorules.rules.OpenRegions`);
-* :func:`open_region_terms` — one soft energy term per isometric open region and held measure:
+* :func:`shape_held_regions` — those held by their shape (``hold: shape``, the default): each
+  keeps its input shape scaled isometrically after Eq. 9 (:mod:`allorules.solve.held_regions`),
+  so no energy term trades it against the rules;
+* :func:`open_region_terms` — with ``hold: soft`` (or for a part the shape cannot hold), one soft
+  energy term per isometric open region and held measure:
   ``weight · (q(x') / (q_0 · r^e_iso) − 1)²``, e_iso the measure's isometric exponent (length 1/3,
   mass 1). A rule of the ruleset on the region replaces it (the region is then not open);
 * :func:`extra_regions` — appendages the body has but the ruleset does not list: each gets its
@@ -30,7 +34,8 @@ log = logging.getLogger("allorules")
 
 REPORTED_MEASURES = ("length", "mass")   # reported for every open region, held or not
 
-__all__ = ["OpenRegionOutcome", "open_regions", "extra_regions", "open_region_terms", "open_region_outcomes"]
+__all__ = ["OpenRegionOutcome", "open_regions", "shape_held_regions", "extra_regions", "open_region_terms",
+           "open_region_outcomes"]
 
 
 def _present(body: Body, region: str) -> bool:
@@ -39,37 +44,47 @@ def _present(body: Body, region: str) -> bool:
 
 def open_regions(ruleset, body: Body) -> dict[str, str]:
     """Every region of the ruleset that no rule of the ruleset measures, and every appendage of the
-    body (a region the ruleset does not list) that ``open_regions.regions`` names, with its setting
-    (``isometric`` / ``free``), in the ruleset's order, then the body's.
+    body (a region the ruleset does not list: a tail, ears), with its setting (``isometric`` /
+    ``free``), in the ruleset's order, then the body's.
 
-    Appendages are held only when named: an unnamed one has no α of its own in Eq. 9 (as before),
-    and giving one to the generated animal's tail by default made a one-step run on it miss its
-    chest girth (0.392 for 0.365, tests/test_biology_scaling.py::test_cli_posture_overrides_the_ruleset)."""
+    With ``hold: soft`` an appendage is open only when ``open_regions.regions`` names it: a soft-held
+    one needs an α of its own in Eq. 9, and giving one to the generated animal's tail by default made
+    a one-step run on it miss its chest girth (0.392 for 0.365). Held by its shape it needs none."""
     measured = {rule.region for rule in ruleset.rules if rule.region}
     named = ruleset.open_regions.regions
-    names = list(ruleset.regions) + [name for name in body.region_names if name not in ruleset.regions and name in named]
+    shape = ruleset.open_regions.hold == "shape"
+    names = list(ruleset.regions) + [name for name in body.region_names
+                                     if name not in ruleset.regions and (shape or name in named)]
     return {name: ruleset.open_regions.setting(name) for name in names
             if name not in measured and _present(body, name)}
 
 
-def extra_regions(ruleset, body: Body) -> tuple[str, ...]:
-    """Regions the body has, the ruleset does not list, and the ruleset holds isometric: each gets
-    an α_j of its own in Eq. 9 (appendages from a labeller that finds tails, ears, horns)."""
+def shape_held_regions(ruleset, body: Body) -> tuple[str, ...]:
+    """The isometric open regions held by their shape (``hold: shape``, the default)."""
+    if ruleset.open_regions.hold != "shape":
+        return ()
+    return tuple(name for name, setting in open_regions(ruleset, body).items() if setting == "isometric")
+
+
+def extra_regions(ruleset, body: Body, held: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """Regions the body has, the ruleset does not list, and the ruleset holds isometric by soft
+    terms (not in ``held``, the regions held by their shape): each gets an α_j of its own in Eq. 9."""
     return tuple(name for name, setting in open_regions(ruleset, body).items()
-                 if setting == "isometric" and name not in ruleset.regions)
+                 if setting == "isometric" and name not in ruleset.regions and name not in held)
 
 
-def open_region_terms(ruleset, body: Body, registry, measure) -> tuple[list, list[str]]:
+def open_region_terms(ruleset, body: Body, registry, measure, held: tuple[str, ...] = ()) -> tuple[list, list[str]]:
     """The soft isometric terms (:class:`allorules.solve.energy.Term`, kind ``"open-region"``) for
-    ``body``, and a note for each term left out because its measure cannot be taken on this body
-    (a default term nobody asked for never fails a run)."""
+    ``body``'s isometric open regions other than ``held`` (those held by their shape), and a note
+    for each term left out because its measure cannot be taken on this body (a default term nobody
+    asked for never fails a run)."""
     from allorules.solve.energy import Term
 
     settings = ruleset.open_regions
     specs = registry.measures()
     terms, notes = [], []
     for region, setting in open_regions(ruleset, body).items():
-        if setting != "isometric" or settings.weight <= 0:
+        if setting != "isometric" or settings.weight <= 0 or region in held:
             continue
         for name in settings.measures:
             spec = specs.get(name)
@@ -90,8 +105,9 @@ def open_region_terms(ruleset, body: Body, registry, measure) -> tuple[list, lis
 @dataclass(frozen=True)
 class OpenRegionOutcome:
     """An open region over the whole run: one measure's achieved exponent e' = log(q_f/q_0)/log R
-    against its isometric exponent, and whether the ruleset held it (``held``) and it stayed within
-    the tolerance (``met``; always True for a measure not held)."""
+    against its isometric exponent, and whether the ruleset held it (``held``; ``hold``: by its
+    ``shape`` or by ``soft`` terms) and it stayed within the tolerance (``met``; always True for a
+    measure not held)."""
 
     region: str
     setting: str
@@ -100,6 +116,7 @@ class OpenRegionOutcome:
     achieved_exponent: float | None
     held: bool
     tolerance: float
+    hold: str | None = None
 
     @property
     def met(self) -> bool:
@@ -109,15 +126,17 @@ class OpenRegionOutcome:
 
     def as_dict(self) -> dict:
         return {"region": self.region, "setting": self.setting, "measure": self.measure, "held": self.held,
+                "hold": self.hold,
                 "isometric_exponent": float(self.isometric_exponent),
                 "achieved_exponent": None if self.achieved_exponent is None else float(self.achieved_exponent),
                 "tolerance": float(self.tolerance), "met": bool(self.met)}
 
 
 def open_region_outcomes(ruleset, registry, initial: Body, final: Body, ratio: float, measure, held_ids: set[str],
-                         tolerance: float) -> list[OpenRegionOutcome]:
+                         tolerance: float, shape_held: tuple[str, ...] = ()) -> list[OpenRegionOutcome]:
     """Length and mass exponents of every open region over a run (fresh measures of input and
-    output), and of any other measure the ruleset holds them at."""
+    output), and of any other measure the ruleset holds them at. ``held_ids``: the soft terms' ids;
+    ``shape_held``: the regions held by their shape (every measure of theirs is held)."""
     specs = registry.measures()
     outcomes = []
     names = tuple(dict.fromkeys(REPORTED_MEASURES + tuple(ruleset.open_regions.measures)))
@@ -132,6 +151,8 @@ def open_region_outcomes(ruleset, registry, initial: Body, final: Body, ratio: f
                 achieved = math.log(after / before) / math.log(ratio) if ratio != 1.0 else float(spec.isometric_exponent)
             except (AllorulesError, ValueError) as error:
                 log.debug("open region %s: %s not measured: %s", region, name, error)
+            soft = f"open:{region}:{name}" in held_ids
+            hold = "shape" if region in shape_held else ("soft" if soft else None)
             outcomes.append(OpenRegionOutcome(region, setting, name, float(spec.isometric_exponent), achieved,
-                                              f"open:{region}:{name}" in held_ids, tolerance))
+                                              hold is not None, tolerance, hold))
     return outcomes

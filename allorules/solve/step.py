@@ -82,6 +82,7 @@ from allorules.solve.energy import (
     Term,
     cached_measure,
 )
+from allorules.solve.held_regions import HeldRegions
 from allorules.solve.posture import FootContact
 from allorules.solve.transform import StepTransform
 from allorules.spectral.basis import HarmonicBasis
@@ -212,6 +213,8 @@ def solve_step(
     constraint_reference: tuple[Body, float] | None = None,
     extra_terms: list[Term] | None = None,
     extra_regions: tuple[str, ...] = (),
+    held: HeldRegions | None = None,
+    held_scale: float = 1.0,
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
@@ -223,7 +226,9 @@ def solve_step(
     :func:`allorules.runs.ruleset_run.scale_with_ruleset`); ``constraint_reference`` = (body, ratio)
     that constraints compare a trial with (default: the step's start and ``mass_ratio``).
     ``extra_terms`` (the open regions' soft isometric terms, :mod:`allorules.solve.open_regions`)
-    join the energy; ``extra_regions`` (appendages the ruleset does not list) get an α_j each.
+    join the energy; ``extra_regions`` (appendages the ruleset does not list) get an α_j each;
+    ``held`` open regions are given their input shape × ``held_scale`` after Eq. 9
+    (:mod:`allorules.solve.held_regions`).
     ``solver.detail_cutoff`` splits the surface into base and detail (:class:`allorules.spectral.power_laws.DetailLayer`).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
@@ -231,7 +236,7 @@ def solve_step(
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions) + tuple(extra_regions)
     step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
-                            detail_cutoff=settings.detail_cutoff)
+                            detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale)
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference,
                         extra_terms)
 

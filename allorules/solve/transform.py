@@ -9,6 +9,7 @@ import numpy as np
 
 from allorules.body import Body
 from allorules.rules.model import TRANSFORM_FORMS
+from allorules.solve.held_regions import HeldRegions
 from allorules.solve.posture import FootContact
 from allorules.spectral.basis import HarmonicBasis, transform
 from allorules.spectral.power_laws import (
@@ -72,10 +73,13 @@ class StepTransform:
     axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
     feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.solve.posture)
     detail: DetailLayer | None = None  # solver.detail_cutoff: Eq. 9 on the base, the detail following it
+    held: HeldRegions | None = None    # open regions held as a similarity of their input shape (solve/held_regions.py)
+    held_scale: float = 1.0            # ... at this isometric factor from the run's input
 
     @classmethod
     def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
-           keep_feet: bool = False, detail_cutoff: float | None = None) -> "StepTransform":
+           keep_feet: bool = False, detail_cutoff: float | None = None, held: HeldRegions | None = None,
+           held_scale: float = 1.0) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
         # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
@@ -99,10 +103,12 @@ class StepTransform:
         if detail_cutoff is not None:
             taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
             detail = DetailLayer(basis, body.vertices, coefficients, taper)
-        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail)
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail, held,
+                   float(held_scale))
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back)."""
+        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the held open regions given
+        their input shape; then the feet put back)."""
         scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
         if self.form == "per-axis":
@@ -115,6 +121,8 @@ class StepTransform:
             vertices = self.detail.apply(new_coefficients)
         else:
             vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        if self.held is not None:
+            vertices = self.held.apply(vertices, self.held_scale)
         return vertices if self.feet is None else self.feet.apply(vertices, scale)
 
     def body_at(self, variables: np.ndarray) -> Body:

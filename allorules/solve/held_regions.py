@@ -1,0 +1,233 @@
+"""Open regions held as a similarity of themselves (METHOD §10: "nothing changes that nobody asked
+to change"; issue 18).
+
+A region that no rule measures (the neck of ``quadruped``; a tail, ears, horns or a trunk when
+the labeller finds them) should scale isometrically: length ∝ M^(1/3), mass ∝ M. Soft terms on its
+length and mass (:func:`allorules.solve.open_regions.open_region_terms`) cannot hold it without
+costing the rules: Eq. 9 gives a region one α_j, and the neck shares its modes with the chest and
+the head, so one α cannot meet the neck's length, its mass and the chest's girth at once (on the
+generated horse at ×0.5 with weight 1 the chest girth reached 0.390 for 0.365). Here the open
+region is taken out of Eq. 9's hands instead, after the transform of each trial:
+
+* each connected part P of the region (its faces as the measures take them: most corners in it)
+  is given its *input* shape scaled by the isometric factor k = R_reached^(1/3) and turned and
+  placed where Eq. 9 put it: S(x) = k Q x + t, Q the rotation that best maps the input part onto
+  Eq. 9's part (Kabsch, area-weighted), t such that the centre of the opening towards the torso
+  (the *near* opening) stays where Eq. 9 put it;
+* what hangs beyond the part (the head beyond the neck, with its ears and horns: the *children*)
+  is moved rigidly by τ, the shift that takes Eq. 9's far opening onto S's;
+* the small mismatch left at each opening (Eq. 9 made the chest and the head other than
+  isometric; a step's worth, since each step starts from the part as the previous one held it)
+  is spread over a *zone* of the neighbouring side, one opening radius wide along the surface:
+  a zone vertex z moves by w(z)·(S − E)(o_z), o_z its nearest opening vertex, w falling smoothly
+  from 1 at the opening to 0 (smoothstep). The part itself is exactly S, so its length and mass
+  are isometric to the measures' precision; the zones lie in ruled regions, whose measures the
+  solver meets on this very mesh.
+
+A part that does not touch the torso's side of the body, or has fewer than ``MIN_VERTICES``
+vertices, is not held so (a note says so; the soft terms then hold it).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from allorules.body import Body
+from allorules.mesh.geometry import vertex_areas
+from allorules.mesh.topology import face_parts, vertex_adjacency, vertex_graph
+
+ZONE = 1.0              # width of a blend zone beyond an opening, in opening radii (along the surface)
+MIN_VERTICES = 8        # smaller parts carry no shape to keep
+ISLAND_SHARE = 0.05     # a side of the body beyond a part smaller than this share of the part's area is part of it
+ROOT_REGIONS = ("chest", "abdomen")   # the torso: what a held part's near opening faces
+
+__all__ = ["BlendZone", "HeldPart", "HeldRegions", "hold_regions"]
+
+
+def _smoothstep(ramp: np.ndarray) -> np.ndarray:
+    ramp = np.clip(ramp, 0.0, 1.0)
+    return ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+@dataclass(frozen=True)
+class BlendZone:
+    """Vertices beyond an opening that take part of the opening's correction: ``vertices`` (body
+    ids), ``source`` (for each, its nearest opening vertex, as an index into the opening) and
+    ``weight`` (1 at the opening, falling to 0 one zone width away)."""
+
+    vertices: np.ndarray
+    source: np.ndarray
+    weight: np.ndarray
+
+    @classmethod
+    def beyond(cls, graph, opening: np.ndarray, side: np.ndarray, reference: np.ndarray) -> "BlendZone":
+        """The zone of ``side`` (a mask of body vertices) beyond ``opening`` (body ids): distances
+        along the surface within the side and the opening, width ``ZONE`` opening radii."""
+        allowed = side.copy()
+        allowed[opening] = True
+        index = np.flatnonzero(allowed)
+        position = np.full(len(side), -1)
+        position[index] = np.arange(len(index))
+        sub = graph[index][:, index]
+        distance, _, nearest = dijkstra(sub, directed=False, indices=position[opening], min_only=True,
+                                        return_predecessors=True)
+        points = reference[opening]
+        radius = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
+        width = ZONE * radius
+        inside = side[index] & np.isfinite(distance) & (distance < width)
+        lookup = np.full(len(side), -1)
+        lookup[opening] = np.arange(len(opening))
+        vertices = index[inside]
+        return cls(vertices, lookup[index[nearest[inside]]], 1.0 - _smoothstep(distance[inside] / width))
+
+    def apply(self, vertices: np.ndarray, correction: np.ndarray) -> None:
+        """Move the zone (in place) by its share of each opening vertex's ``correction``."""
+        if len(self.vertices):
+            vertices[self.vertices] += self.weight[:, None] * correction[self.source]
+
+
+@dataclass(frozen=True)
+class HeldPart:
+    """One connected part of a held region and what moves with it.
+
+    ``members``: its body vertices; ``reference``: their positions on the run's input (the shape
+    kept); ``weights``: their area shares (for the fit); ``near`` / ``far``: indices into
+    ``members`` of the opening towards the torso and of the opening beyond (empty for an appendage
+    such as a tail); ``children``: body vertices beyond the far opening, moved rigidly by τ;
+    ``near_zone`` / ``far_zone``: where the openings' mismatch is spread."""
+
+    region: str
+    members: np.ndarray
+    reference: np.ndarray
+    weights: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+    children: np.ndarray
+    near_zone: BlendZone
+    far_zone: BlendZone | None
+
+    def shape(self, moved: np.ndarray, scale: float) -> np.ndarray:
+        """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
+        is, its near opening's centre where ``moved`` has it."""
+        w = self.weights
+        covariance = ((moved - w @ moved) * w[:, None]).T @ (self.reference - w @ self.reference)   # Σ w q pᵀ
+        u, _, vt = np.linalg.svd(covariance)
+        if np.linalg.det(u @ vt) < 0:
+            u[:, -1] = -u[:, -1]
+        shape = scale * self.reference @ (u @ vt).T
+        return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
+
+    def apply(self, vertices: np.ndarray, scale: float) -> None:
+        """Give the part (in ``vertices``, in place) its reference shape × ``scale``; move its
+        children with its far opening and spread the openings' mismatch over the zones."""
+        moved = vertices[self.members]
+        shape = self.shape(moved, scale)
+        self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
+        if len(self.far):
+            shift = shape[self.far].mean(axis=0) - moved[self.far].mean(axis=0)
+            vertices[self.children] += shift
+            if self.far_zone is not None:
+                self.far_zone.apply(vertices, shape[self.far] - (moved[self.far] + shift))
+        vertices[self.members] = shape
+
+
+@dataclass(frozen=True)
+class HeldRegions:
+    """The held parts of a body, in the order they are applied (those carrying others first)."""
+
+    parts: tuple[HeldPart, ...]
+    notes: tuple[str, ...] = ()
+
+    @property
+    def regions(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(part.region for part in self.parts))
+
+    def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
+        """``vertices`` with every held part given its input shape × ``scale`` (the isometric factor
+        from the run's input), placed where ``vertices`` have it (module docstring)."""
+        if not self.parts:
+            return vertices
+        result = np.array(vertices, dtype=float, copy=True)
+        for part in self.parts:
+            part.apply(result, scale)
+        return result
+
+
+def _sides(adjacency, inside: np.ndarray, root: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    """The rest of the body (``~inside``) in connected sides: each vertex's side (−1 inside), the
+    side that holds the torso (``root``; without it, the largest), and the vertices of sides too
+    small to be a body part (fewer than ``MIN_VERTICES`` vertices or under ``ISLAND_SHARE`` of the
+    part's area): label islands the part encloses."""
+    outside = ~inside
+    _, side = connected_components(adjacency[outside][:, outside], directed=False)
+    side_of = np.full(len(inside), -1)
+    side_of[outside] = side
+    sizes = np.bincount(side)
+    side_areas = np.bincount(side, weights=areas[outside])
+    if root.any() and (root & outside).any():
+        root_side = int(np.bincount(side_of[root & outside]).argmax())
+    else:
+        root_side = int(np.argmax(side_areas)) if len(side_areas) else -1
+    small = (sizes < MIN_VERTICES) | (side_areas < ISLAND_SHARE * areas[inside].sum())
+    if root_side >= 0:
+        small[root_side] = False
+    return side_of, root_side, outside & small[np.maximum(side_of, 0)]
+
+
+def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
+    """The :class:`HeldRegions` of ``regions`` on ``body`` (the run's input, labelled).
+
+    Each connected part of a region is held. Its near opening is where it meets the side of the
+    body that holds the torso (``ROOT_REGIONS``; without them, the largest side); every other side
+    (the head beyond the neck) is its children. A part that does not touch that side, or has fewer
+    than ``MIN_VERTICES`` vertices, is not held (a note says so)."""
+    if body.labels is None or not regions:
+        return HeldRegions(())
+    count = len(body.vertices)
+    adjacency = vertex_adjacency(body.faces, count).tocsr()
+    graph = vertex_graph(body.vertices, body.faces).tocsr()
+    areas = vertex_areas(body.vertices, body.faces)
+    root = np.zeros(count, dtype=bool)
+    for name in ROOT_REGIONS:
+        if body.has_region(name):
+            root |= body.region_mask(name)
+    found: list[HeldPart] = []
+    notes: list[str] = []
+    for region in regions:
+        if not body.has_region(region):
+            continue
+        # the region's faces as the measures take them (most of their corners in it), so that what
+        # is held is what its length and mass are measured on
+        region_faces = body.faces[body.region_face_mask(region)]
+        for piece in face_parts(region_faces):
+            faces = region_faces[piece]
+            inside = np.zeros(count, dtype=bool)
+            inside[np.unique(faces)] = True
+            if inside.sum() < MIN_VERTICES:
+                continue
+            side_of, root_side, islands = _sides(adjacency, inside, root, areas)
+            if islands.any():
+                inside |= islands
+                side_of, root_side, _ = _sides(adjacency, inside, root, areas)
+            members = np.flatnonzero(inside)
+            touching = adjacency[members].tocoo()
+            neighbour_side = side_of[touching.col]
+            near_ids = np.unique(members[touching.row][neighbour_side == root_side])
+            far_ids = np.setdiff1d(np.unique(members[touching.row][(neighbour_side >= 0) & (neighbour_side != root_side)]),
+                                   near_ids)
+            if root_side < 0 or not len(near_ids):
+                notes.append(f"open region {region}: a part of {len(members)} vertices does not join the torso's side "
+                             "of the body; it is held by soft terms")
+                continue
+            child_side = (side_of >= 0) & (side_of != root_side)
+            reference = body.vertices[members].copy()
+            found.append(HeldPart(
+                region, members, reference, areas[members] / areas[members].sum(),
+                np.searchsorted(members, near_ids), np.searchsorted(members, far_ids), np.flatnonzero(child_side),
+                BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices),
+                BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None))
+    # parts that carry others (the neck carries the head and its ears) first
+    ordered = tuple(sorted(found, key=lambda part: -len(part.children)))
+    return HeldRegions(ordered, tuple(notes))
