@@ -8,7 +8,7 @@ from allorules.errors import RulesetError
 from allorules.plugins.registry import registry_for
 from allorules.rules.model import OpenRegions, ruleset_to_dict
 from allorules.rules.resolve import check_ruleset, load_ruleset
-from allorules.solve.open_regions import extra_regions, open_regions
+from allorules.solve.open_regions import extra_regions, open_regions, shape_held_regions
 
 
 def _write(tmp_path, text, name="set.yaml"):
@@ -20,7 +20,7 @@ def _write(tmp_path, text, name="set.yaml"):
 def test_default_is_isometric_length_and_mass():
     ruleset = load_ruleset("quadruped")
     assert ruleset.open_regions == OpenRegions()
-    assert ruleset.open_regions.default == "isometric"
+    assert ruleset.open_regions.default == "isometric" and ruleset.open_regions.hold == "shape"
     assert ruleset.open_regions.measures == ("length", "mass")
 
 
@@ -47,6 +47,7 @@ def test_word_mapping_and_per_region_settings(tmp_path):
     ("open_regions:\n  measures: [lenght]\n", "3:13: open_regions.measures: 'lenght' is not a measure of a region; did you mean 'length'?"),
     ("open_regions:\n  regions: {neck: iso}\n", "3:19: open_regions.regions.neck 'iso' is not one of 'isometric', 'free'"),
     ("open_regions: 3\n", "2:15: open_regions must be 'isometric', 'free' or a mapping"),
+    ("open_regions:\n  hold: shap\n", "3:9: open_regions.hold 'shap' is not one of 'shape', 'soft'"),
     ("solver:\n  detail_cutoff: -3\n", "3:18: solver.detail_cutoff must be a positive number of modes or null"),
 ])
 def test_bad_settings_name_file_and_line(tmp_path, text, expected):
@@ -59,9 +60,16 @@ def test_bad_settings_name_file_and_line(tmp_path, text, expected):
 def test_a_rule_replaces_the_default_and_appendages_are_open(generated_horse, tmp_path):
     body = generated_horse.body()            # the generator's labels include a tail
     quadruped = load_ruleset("quadruped")
-    assert open_regions(quadruped, body) == {"neck": "isometric"}          # appendages only when named
-    assert extra_regions(quadruped, body) == ()
-    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  regions: {tail: isometric}\n"))
+    # held by their shape (the default), appendages are open too and need no α of their own
+    assert open_regions(quadruped, body) == {"neck": "isometric", "tail": "isometric"}
+    assert shape_held_regions(quadruped, body) == ("neck", "tail")
+    assert extra_regions(quadruped, body, held=("neck", "tail")) == ()
+    assert extra_regions(quadruped, body, held=("neck",)) == ("tail",)    # a tail the shape cannot hold: soft, its own α
+    # held by soft terms (today's behaviour), appendages only when named, each with an α of its own
+    soft = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions: {hold: soft}\n", "soft.yaml"))
+    assert open_regions(soft, body) == {"neck": "isometric"}
+    assert shape_held_regions(soft, body) == () and extra_regions(soft, body) == ()
+    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  hold: soft\n  regions: {tail: isometric}\n"))
     assert open_regions(named, body) == {"neck": "isometric", "tail": "isometric"}
     assert extra_regions(named, body) == ("tail",)
     override = load_ruleset("neck-override")
