@@ -216,6 +216,9 @@ def scale_with_ruleset(
             # turning a slanted leg upright moves its foot up or down a little (0.5 % of a leg per
             # step on the automatically labelled generated horse): put the feet back once more
             following = following.with_vertices(solution.feet.apply(following.vertices, solution.scale))
+        if held.parts:
+            # the feet's shift reaches every vertex: the held parts given their shape once more
+            following = following.with_vertices(held.apply(following.vertices, (reached * ratio) ** (1.0 / 3.0)))
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
         mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
         stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from allorules.body import Body
+from allorules.measure.features import similarity_fit
 from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.topology import face_parts, vertex_adjacency, vertex_graph
 
@@ -111,12 +112,8 @@ class HeldPart:
     def shape(self, moved: np.ndarray, scale: float) -> np.ndarray:
         """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
         is, its near opening's centre where ``moved`` has it."""
-        w = self.weights
-        covariance = ((moved - w @ moved) * w[:, None]).T @ (self.reference - w @ self.reference)   # Σ w q pᵀ
-        u, _, vt = np.linalg.svd(covariance)
-        if np.linalg.det(u @ vt) < 0:
-            u[:, -1] = -u[:, -1]
-        shape = scale * self.reference @ (u @ vt).T
+        _, rotation, _ = similarity_fit(self.reference, moved, self.weights)    # Q (Kabsch/Umeyama, area-weighted)
+        shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
     def apply(self, vertices: np.ndarray, scale: float) -> None:

@@ -107,8 +107,8 @@ class StepTransform:
                    float(held_scale))
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the held open regions given
-        their input shape; then the feet put back)."""
+        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back; then
+        the held open regions given their input shape)."""
         scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
         if self.form == "per-axis":
@@ -121,9 +121,10 @@ class StepTransform:
             vertices = self.detail.apply(new_coefficients)
         else:
             vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
-        if self.held is not None:
-            vertices = self.held.apply(vertices, self.held_scale)
-        return vertices if self.feet is None else self.feet.apply(vertices, scale)
+        if self.feet is not None:
+            vertices = self.feet.apply(vertices, scale)
+        # last: the feet's shift is harmonic over the whole body and would shear a held part
+        return vertices if self.held is None else self.held.apply(vertices, self.held_scale)
 
     def body_at(self, variables: np.ndarray) -> Body:
         from allorules.measure.parts import carry_fields

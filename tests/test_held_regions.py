@@ -1,0 +1,147 @@
+"""Open regions held as a similarity of themselves (allorules/solve/held_regions.py; issue 18 §1).
+
+Known answers: a similarity of the whole body is left as it is; any other deformation leaves each
+held part exactly its input shape × k, what hangs beyond it moved rigidly, the rest of the body
+untouched beyond the blend zones, and no tear at an opening. Then the whole run on the generated
+quadruped at ×2 and ×0.5: the neck (and the tail) isometric while every rule of ``quadruped`` is met."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from allorules.measure.features import similarity_fit
+from allorules.mesh.topology import unique_edges
+from allorules.solve import held_regions
+from allorules.solve.held_regions import hold_regions
+
+K = 1.05          # the isometric factor the tests hold at
+
+
+def _similarity_residual(before: np.ndarray, after: np.ndarray) -> tuple[float, float]:
+    """(scale, largest distance from the best similarity image of ``before``, in units of its size)."""
+    scale, rotation, shift = similarity_fit(before, after)
+    residual = np.linalg.norm(after - (scale * before @ rotation.T + shift), axis=1).max()
+    size = np.sqrt(np.mean(np.sum((before - before.mean(axis=0)) ** 2, axis=1)))
+    return scale, float(residual / (scale * size))
+
+
+def _deformed(vertices: np.ndarray) -> np.ndarray:
+    """A smooth deformation that is no similarity: anisotropic, sheared, bent (a step's worth)."""
+    centre = vertices.mean(axis=0)
+    linear = np.array([[1.15, 0.03, 0.0], [0.0, 0.92, 0.02], [0.0, 0.0, 1.05]])
+    moved = (vertices - centre) @ linear.T + centre
+    moved[:, 1] += 0.02 * np.sin(2.0 * vertices[:, 0])
+    return moved
+
+
+def _worst_stretch_jump(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Per vertex, the largest ratio between the stretches (after/before length) of its edges: 1 where
+    the surface around it is stretched evenly, large at a tear or a kink."""
+    edges = unique_edges(faces)
+    stretch = np.log(np.linalg.norm(after[edges[:, 0]] - after[edges[:, 1]], axis=1)
+                     / np.linalg.norm(before[edges[:, 0]] - before[edges[:, 1]], axis=1))
+    ends, values = edges.T.ravel(), np.concatenate([stretch, stretch])
+    high, low = np.full(len(before), -np.inf), np.full(len(before), np.inf)
+    np.maximum.at(high, ends, values)
+    np.minimum.at(low, ends, values)
+    return np.exp(high - low)
+
+
+@pytest.fixture(scope="module")
+def horse_held(generated_horse):
+    body = generated_horse.body()
+    return body, hold_regions(body, ("neck", "tail"))
+
+
+def test_the_neck_carries_the_head_and_the_tail_hangs_free(horse_held, generated_horse):
+    body, held = horse_held
+    assert held.regions == ("neck", "tail") and not held.notes
+    neck, tail = held.parts                                    # the part carrying others comes first
+    head = body.region_mask("head")
+    assert head[neck.children].all()                           # what the neck carries is the head, all of it
+    assert np.isin(np.flatnonzero(head), np.concatenate([neck.children, neck.members])).all()
+    assert len(neck.near) and len(neck.far) and len(neck.near_zone.vertices) and neck.far_zone is not None
+    assert len(tail.near) and not len(tail.far) and not len(tail.children)
+    # the zones lie beyond the part, weights from 1 at the opening falling to 0
+    for zone in (neck.near_zone, neck.far_zone, tail.near_zone):
+        assert not np.isin(zone.vertices, np.concatenate([neck.members, tail.members])).any()
+        assert np.all((zone.weight > 0) & (zone.weight <= 1))
+
+
+def test_a_similarity_of_the_whole_body_is_left_as_it_is(horse_held):
+    body, held = horse_held
+    rotation = Rotation.from_euler("xyz", [0.3, -0.7, 1.1]).as_matrix()
+    moved = 1.7 * body.vertices @ rotation.T + np.array([0.4, -2.0, 3.0])
+    assert np.allclose(held.apply(moved, 1.7), moved, rtol=0, atol=1e-9 * np.abs(moved).max())
+
+
+def test_any_deformation_leaves_each_part_its_input_shape_times_k(horse_held):
+    body, held = horse_held
+    moved = _deformed(body.vertices)
+    result = held.apply(moved, K)
+    for part in held.parts:
+        scale, residual = _similarity_residual(body.vertices[part.members], result[part.members])
+        assert scale == pytest.approx(K, rel=1e-9) and residual < 1e-9, part.region
+        # the near opening's centre stays where the deformation put it
+        near = part.members[part.near]
+        assert np.allclose(result[near].mean(axis=0), moved[near].mean(axis=0), atol=1e-12)
+    neck = held.parts[0]
+    # the head moves rigidly (by one shift) outside the far opening's blend zone
+    rigid = np.setdiff1d(neck.children, neck.far_zone.vertices)
+    assert len(rigid) >= 10                  # the head is about one opening radius long: most of it is zone
+    shift = result[rigid] - moved[rigid]
+    assert np.allclose(shift, shift[0], atol=1e-12) and np.linalg.norm(shift[0]) > 1e-3
+    # nothing else moves
+    touched = np.concatenate([np.concatenate([part.members, part.children, part.near_zone.vertices])
+                              for part in held.parts] + [neck.far_zone.vertices])
+    untouched = np.setdiff1d(np.arange(len(moved)), touched)
+    assert np.array_equal(result[untouched], moved[untouched])
+
+
+def test_the_blend_zones_leave_no_tear_at_an_opening(horse_held, monkeypatch):
+    """Around every opening vertex the edges' stretches (against the deformed mesh) differ by at
+    most 1.5× (measured: 1.30 with this deformation); the part pasted without zones tears (2.6×)."""
+    body, held = horse_held
+    moved = _deformed(body.vertices)
+    openings = np.concatenate([part.members[np.concatenate([part.near, part.far]).astype(int)] for part in held.parts])
+    jump = _worst_stretch_jump(moved, held.apply(moved, K), body.faces)
+    assert jump[openings].max() < 1.5
+    monkeypatch.setattr(held_regions, "ZONE", 0.0)
+    pasted = hold_regions(body, ("neck", "tail")).apply(moved, K)
+    assert _worst_stretch_jump(moved, pasted, body.faces)[openings].max() > 2.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ratio", [2.0, 0.5])
+def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_rule(generated_horse, ratio):
+    """The default (hold: shape) on the generated horse (3,000 vertices, 200 modes): every rule of
+    ``quadruped`` met, the neck's and the tail's length and mass exponents within ±0.02 of 1/3 and 1
+    (measured: 0.3333 and 1.0000 at both ratios; with hold: soft 0.397 at ×2 and 0.470 at ×0.5),
+    each an exact similarity of its input, and no opening the worst kink of the body."""
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs.results import EXPONENT_TOLERANCE
+    from allorules.runs.ruleset_run import scale_with_ruleset
+
+    body = generated_horse.body()
+    registry = registry_for(None)
+    result = scale_with_ruleset(body, load_ruleset("quadruped", registry), ratio, registry=registry, modes=200,
+                                use_cache=False)
+    assert result.converged, result.messages
+    assert all(abs(rule.error) <= EXPONENT_TOLERANCE for rule in result.rules), [rule.as_dict() for rule in result.rules]
+    outcomes = {(o.region, o.measure): o for o in result.open_regions}
+    for region in ("neck", "tail"):
+        assert outcomes[(region, "length")].hold == "shape"
+        assert abs(outcomes[(region, "length")].achieved_exponent - 1 / 3) <= 0.02
+        assert abs(outcomes[(region, "mass")].achieved_exponent - 1.0) <= 0.02
+    held = hold_regions(body, ("neck", "tail"))
+    for part in held.parts:
+        scale, residual = _similarity_residual(body.vertices[part.members], result.body.vertices[part.members])
+        assert scale == pytest.approx(ratio ** (1 / 3), rel=1e-6) and residual < 1e-6, part.region
+    # measured: openings' worst 1.50 / 1.83 (×2), 1.63 / 2.57 (×0.5); the body's own worst 1.91 / 3.26
+    jump = _worst_stretch_jump(body.vertices, result.body.vertices, body.faces)
+    openings = np.zeros(len(jump), dtype=bool)
+    for part in held.parts:
+        openings[part.members[np.concatenate([part.near, part.far]).astype(int)]] = True
+    assert jump[openings].max() < 3.0 and jump[openings].max() <= jump[~openings].max()
