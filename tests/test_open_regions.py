@@ -105,3 +105,13 @@ def test_soft_terms_hold_the_open_neck_when_asked_and_neck_override_still_contro
     achieved = {rule.id: rule.achieved_exponent for rule in controlled.rules}
     assert abs(achieved["neck-length"] - 0.5) <= 0.02
     assert not [outcome for outcome in controlled.open_regions if outcome.region == "neck"]
+
+
+def test_an_appendage_named_in_open_regions_is_kept_apart(tmp_path):
+    """Without a name a tail joins the abdomen (segment/regions.py) and is scaled with it; named in
+    open_regions it is kept as a region of its own, so that it can be held."""
+    from allorules.runs.pipeline import wanted_regions
+
+    assert "tail" not in wanted_regions(load_ruleset("quadruped"))
+    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  regions: {tail: isometric}\n"))
+    assert wanted_regions(named)[-1] == "tail"

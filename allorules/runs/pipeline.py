@@ -188,11 +188,14 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
 
 
 def wanted_regions(ruleset: Ruleset | None) -> tuple[str, ...]:
-    """The regions a run keeps apart: the six of a quadruped and every region the ruleset names."""
+    """The regions a run keeps apart: the six of a quadruped and every region the ruleset names
+    (in its regions, its rules or its open_regions)."""
     names = list(QUADRUPED_REGIONS)
     if ruleset is not None:
         names += [name for name in ruleset.regions if name not in names]
         names += [rule.region for rule in ruleset.rules if rule.region and rule.region not in names]
+        # an appendage the ruleset's open_regions names (a tail held isometric) is kept apart too
+        names += [name for name in ruleset.open_regions.regions if name not in names]
     return tuple(names)
 
 
