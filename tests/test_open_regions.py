@@ -107,11 +107,18 @@ def test_soft_terms_hold_the_open_neck_when_asked_and_neck_override_still_contro
     assert not [outcome for outcome in controlled.open_regions if outcome.region == "neck"]
 
 
-def test_an_appendage_named_in_open_regions_is_kept_apart(tmp_path):
-    """Without a name a tail joins the abdomen (segment/regions.py) and is scaled with it; named in
-    open_regions it is kept as a region of its own, so that it can be held."""
+def test_appendages_are_kept_apart_when_held_by_their_shape_or_named(tmp_path):
+    """Folded into its neighbour (segment/regions.py) a tail takes the abdomen's exponent; held by
+    its shape (the default) every appendage is kept as a region of its own, unless set free; with
+    hold: soft only a named one is (it then needs an α of its own)."""
     from allorules.runs.pipeline import wanted_regions
 
-    assert "tail" not in wanted_regions(load_ruleset("quadruped"))
-    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  regions: {tail: isometric}\n"))
-    assert wanted_regions(named)[-1] == "tail"
+    default = wanted_regions(load_ruleset("quadruped"))
+    assert default[:6] == ("head", "neck", "chest", "abdomen", "forelimbs", "hindlimbs")
+    assert {"tail", "ears", "horns", "trunk"} <= set(default)
+    free = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  regions: {tail: free}\n", "free.yaml"))
+    assert "tail" not in wanted_regions(free) and "ears" in wanted_regions(free)
+    soft = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions: {hold: soft}\n", "soft.yaml"))
+    assert wanted_regions(soft) == default[:6]
+    named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  hold: soft\n  regions: {tail: isometric}\n"))
+    assert wanted_regions(named) == default[:6] + ("tail",)

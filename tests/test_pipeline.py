@@ -69,7 +69,8 @@ def animal_files(tmp_path_factory):
 
 
 def truth_folded(horse) -> tuple[np.ndarray, tuple[str, ...]]:
-    folded = fold_regions(horse.body())
+    """The truth as a `quadruped` run keeps it: its tail apart (held by its shape, the default)."""
+    folded = fold_regions(horse.body(), pipeline.wanted_regions(load_ruleset("quadruped")))
     return folded.labels, folded.region_names
 
 
@@ -91,7 +92,7 @@ def test_a_rulesets_segmenter_labels_a_scale_run_and_the_report_names_it(animal_
     assert data["labels"]["source"] == "segmenter from-truth (plugin truth_segmenter)"
     assert data["labels"]["confidence"] == {"certain": 1.0}
     assert code in (0, 2)       # converged or not, the run was labelled by the plugin
-    # the regions are the file's (tail folded into the abdomen), not the automatic labeller's
+    # the regions are the file's (the tail kept apart), not the automatic labeller's
     truth, names = truth_folded(horse)
     assert set(data["labels"]["regions"]) == set(names)
 
@@ -189,9 +190,14 @@ def test_regions_a_ruleset_lists_are_kept_others_fold_into_their_neighbour(anima
     body = Body(prepared.vertices, prepared.faces)
     with_tail = pipeline.label(body, registry=registry, labels=folder / "horse.labels.json",
                                regions=pipeline.wanted_regions(load_ruleset(tmp_path / "with-tail.yaml", registry)))
+    write(tmp_path, "soft.yaml", "extends: quadruped\nopen_regions: {hold: soft}\n")
     without = pipeline.label(body, registry=registry, labels=folder / "horse.labels.json",
-                             regions=pipeline.wanted_regions(load_ruleset("quadruped", registry)))
+                             regions=pipeline.wanted_regions(load_ruleset(tmp_path / "soft.yaml", registry)))
     assert "tail" in with_tail.region_names and "tail" not in without.region_names
+    # held by their shape (the default), appendages are kept apart without being listed
+    default = pipeline.label(body, registry=registry, labels=folder / "horse.labels.json",
+                             regions=pipeline.wanted_regions(load_ruleset("quadruped", registry)))
+    assert np.array_equal(labels_as_names(default), labels_as_names(with_tail))
     tail = with_tail.region_mask("tail")
     assert tail.any() and np.all(labels_as_names(without)[tail] == "abdomen")
 

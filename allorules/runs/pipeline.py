@@ -57,7 +57,7 @@ from allorules.runs.results import (
 )
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.segment.labels_io import read_labels, read_seg
-from allorules.segment.regions import QUADRUPED_REGIONS, fold_regions
+from allorules.segment.regions import NEIGHBOUR_REGION, QUADRUPED_REGIONS, fold_regions
 
 log = logging.getLogger("allorules")
 
@@ -188,14 +188,21 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
 
 
 def wanted_regions(ruleset: Ruleset | None) -> tuple[str, ...]:
-    """The regions a run keeps apart: the six of a quadruped and every region the ruleset names
-    (in its regions, its rules or its open_regions)."""
+    """The regions a run keeps apart: the six of a quadruped, every region the ruleset names (in its
+    regions, its rules or its open_regions) and, when open regions are held by their shape (the
+    default), every appendage (tail, ears, horns, trunk, ...) the ruleset does not set free."""
     names = list(QUADRUPED_REGIONS)
     if ruleset is not None:
         names += [name for name in ruleset.regions if name not in names]
         names += [rule.region for rule in ruleset.rules if rule.region and rule.region not in names]
-        # an appendage the ruleset's open_regions names (a tail held isometric) is kept apart too
-        names += [name for name in ruleset.open_regions.regions if name not in names]
+        # an appendage the ruleset's open_regions holds isometric (a named tail) is kept apart too
+        opened = ruleset.open_regions
+        names += [name for name, setting in opened.regions.items() if name not in names and setting == "isometric"]
+        if opened.hold == "shape":
+            # held by its shape an appendage costs the solver nothing, and folded into its neighbour it
+            # takes the neighbour's exponent (the real horse's tail whipped out to twice its length at
+            # ×0.5 once the neck was held): every appendage a segmenter finds is kept apart and held
+            names += [name for name in NEIGHBOUR_REGION if name not in names and opened.setting(name) == "isometric"]
     return tuple(names)
 
 
