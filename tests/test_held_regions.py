@@ -145,3 +145,19 @@ def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_r
     for part in held.parts:
         openings[part.members[np.concatenate([part.near, part.far]).astype(int)]] = True
     assert jump[openings].max() < 3.0 and jump[openings].max() <= jump[~openings].max()
+
+
+def test_an_appendage_keeps_its_set_on_the_body_when_eq9_swings_it(horse_held):
+    """A deformation that swings the tail 30° about its root (as Eq. 9 can bend a thin tail) leaves
+    the held tail at its input set (its opening is where it was), not swung with it."""
+    body, held = horse_held
+    tail = held.parts[1]
+    root = body.vertices[tail.members[tail.near]].mean(axis=0)
+    swing = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    moved = body.vertices.copy()
+    beyond = np.setdiff1d(tail.members, tail.members[tail.near])
+    moved[beyond] = (moved[beyond] - root) @ swing.T + root
+    result = held.apply(moved, 1.0)
+    _, rotation, _ = similarity_fit(body.vertices[tail.members], result[tail.members])
+    assert np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))) < 1.0
+    assert np.allclose(result[tail.members], body.vertices[tail.members], atol=1e-9)

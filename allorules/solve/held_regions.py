@@ -12,8 +12,9 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
 * each connected part P of the region (its faces as the measures take them: most corners in it)
   is given its *input* shape scaled by the isometric factor k = R_reached^(1/3) and turned and
   placed where Eq. 9 put it: S(x) = k Q x + t, Q the rotation that best maps the input part onto
-  Eq. 9's part (Kabsch, area-weighted), t such that the centre of the opening towards the torso
-  (the *near* opening) stays where Eq. 9 put it;
+  Eq. 9's part (Kabsch, area-weighted; for an appendage, which carries nothing, its near opening
+  onto Eq. 9's: it keeps its set on the body), t such that the centre of the opening towards the
+  torso (the *near* opening) stays where Eq. 9 put it;
 * what hangs beyond the part (the head beyond the neck, with its ears and horns: the *children*)
   is moved rigidly by τ, the shift that takes Eq. 9's far opening onto S's;
 * the small mismatch left at each opening (Eq. 9 made the chest and the head other than
@@ -50,6 +51,14 @@ __all__ = ["BlendZone", "HeldPart", "HeldRegions", "hold_regions"]
 def _smoothstep(ramp: np.ndarray) -> np.ndarray:
     ramp = np.clip(ramp, 0.0, 1.0)
     return ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+def _spans_a_plane(points: np.ndarray) -> bool:
+    """Whether ``points`` fix a rotation: at least three, not all on one line."""
+    if len(points) < 3:
+        return False
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return bool(singular[1] > 1e-3 * singular[0])
 
 
 @dataclass(frozen=True)
@@ -111,8 +120,17 @@ class HeldPart:
 
     def shape(self, moved: np.ndarray, scale: float) -> np.ndarray:
         """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
-        is, its near opening's centre where ``moved`` has it."""
-        _, rotation, _ = similarity_fit(self.reference, moved, self.weights)    # Q (Kabsch/Umeyama, area-weighted)
+        is, its near opening's centre where ``moved`` has it.
+
+        Q is the rotation that best maps the reference onto ``moved`` (Kabsch/Umeyama): over the
+        whole part when it carries something (the neck: the head goes where Eq. 9 put it), over its
+        near opening alone for an appendage (a tail keeps the set it had on the body: Eq. 9 bends
+        a thin tail, and turning the whole tail after it swung a giraffe's tail out by about 40°
+        at ×0.5 and dented the rump where the opening had to follow)."""
+        if len(self.far) or not _spans_a_plane(self.reference[self.near]):
+            _, rotation, _ = similarity_fit(self.reference, moved, self.weights)
+        else:
+            _, rotation, _ = similarity_fit(self.reference[self.near], moved[self.near])
         shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
