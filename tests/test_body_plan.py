@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rotations import random_rotation
 
 from allorules.body import Body
 from allorules.errors import SegmentationError
@@ -21,15 +22,6 @@ from allorules.segment.regions import QUADRUPED_REGIONS, fold_regions
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 HAND_MARKS = Path(__file__).resolve().parent / "data" / "hand_marks.json"
 SETTLE = "--forward|allorules segment"
-
-
-def random_rotation(seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q
 
 
 def agreement(animal, labelled) -> float:

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from rotations import random_rotation
 
 from allorules.body import Body
 from allorules.errors import RulesetError, SegmentationError
@@ -45,15 +46,6 @@ def truth_body(animal) -> Body:
 def area_agreement(labels_a, labels_b, vertices, faces) -> float:
     mass = vertex_areas(vertices, faces)
     return float(mass[labels_a == labels_b].sum() / mass.sum())
-
-
-def random_rotation(seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q
 
 
 @pytest.fixture(scope="session")

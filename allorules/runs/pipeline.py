@@ -310,10 +310,12 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     if not again.converged:
         result.warnings.append(f"held by soft terms instead of by their shape, the open regions let the run miss "
                                f"too ({again.messages[0] if again.messages else 'a target missed'})")
+        log.warning("%s", result.warnings[-1])
         return result
     again.warnings.insert(0, f"the open regions could not be held by their shape with every target met ({missed}); "
                              "they were held by soft terms instead (hold: soft), which keeps them isometric only "
                              "loosely: see open_regions in the report")
+    log.warning("%s", again.warnings[0])
     return again
 
 

@@ -609,30 +609,16 @@ def _beyond_loop(vertices, faces, graph, adjacency, point, normal, allowed, tip)
 
 
 def isocontour_profile(vertices, faces, field, levels):
-    """Length and centroid of the isocontour of a per-vertex field at each level (marching triangles)."""
-    values = field[faces]
-    corners = vertices[faces]
+    """Length and centroid of the isocontour of a per-vertex field at each level (marching
+    triangles, :func:`allorules.segment.body_plan.isocontour_segments`)."""
     lengths = np.zeros(len(levels))
     centroids = np.zeros((len(levels), 3))
     for k, level in enumerate(levels):
-        above = values > level
-        count = above.sum(axis=1)
-        crossing = (count == 1) | (count == 2)
-        if not crossing.any():
-            continue
-        v, c, a = values[crossing], corners[crossing], above[crossing]
-        # The lone corner (the one on the other side from the other two) and its two edges.
-        lone = np.where(a.sum(axis=1) == 1, np.argmax(a, axis=1), np.argmin(a, axis=1))
-        rows = np.arange(len(v))
-        points = []
-        for step in (1, 2):
-            other = (lone + step) % 3
-            t = (level - v[rows, lone]) / (v[rows, other] - v[rows, lone])
-            points.append(c[rows, lone] + t[:, None] * (c[rows, other] - c[rows, lone]))
-        segment = np.linalg.norm(points[1] - points[0], axis=1)
+        start, end = body_plan.isocontour_segments(vertices, faces, field, level)
+        segment = np.linalg.norm(end - start, axis=1)
         lengths[k] = segment.sum()
         if lengths[k] > 0:
-            centroids[k] = (0.5 * (points[0] + points[1]) * segment[:, None]).sum(axis=0) / lengths[k]
+            centroids[k] = (0.5 * (start + end) * segment[:, None]).sum(axis=0) / lengths[k]
     return lengths, centroids
 
 
