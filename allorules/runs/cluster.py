@@ -465,7 +465,14 @@ class _ClusterWatch:
         if now - self.checked < STATUS_SECONDS and self.checked:
             return
         self.checked = now
-        workers = dict(self.client.nthreads())
+        from distributed.comm.core import CommClosedError
+
+        try:
+            workers = dict(self.client.nthreads())
+            processing = self.client.processing()
+        except (CommClosedError, OSError, TimeoutError):   # the scheduler went away between two looks
+            raise ClusterError("lost the connection to the Dask scheduler (or it restarted); run the batch again "
+                               "to resume") from None
         for address in sorted(set(self.workers) - set(workers)):
             log.warning("cluster: worker %s left; its jobs in flight run again on the other workers", address)
         for address in sorted(set(workers) - set(self.workers)):
@@ -477,8 +484,8 @@ class _ClusterWatch:
                         "'dask worker %s --nthreads 1'", self.client.scheduler.address)
         self.told_empty = not workers
         running = 0
-        for address, processing in self.client.processing().items():
-            ours = sum(1 for key in processing if key in keys)
+        for address, tasks in processing.items():
+            ours = sum(1 for key in tasks if key in keys)
             running += min(ours, workers.get(address, 0))
         progress.running = running
         line = f"{progress.counts()} on {len(workers)} worker{'' if len(workers) == 1 else 's'}"
