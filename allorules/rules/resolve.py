@@ -22,6 +22,8 @@ from allorules.rules.model import (
     DEFAULT_SEGMENTER,
     OPEN_REGION_HOLDS,
     OPEN_REGION_SETTINGS,
+    POSTURES,
+    TRANSFORM_FORMS,
     BodyMassTerm,
     ConstraintUse,
     OpenRegions,
@@ -439,26 +441,30 @@ def _apply_open_regions(document: LocatedDocument, merged: _Merged) -> None:
             merged.open_regions_where[key] = document.at("open_regions", key)
 
 
+def _take_choice(values: Mapping[str, Any], key: str, choices, settings: dict[str, Any],
+                 problems: list[RulesetError], location, message) -> None:
+    """``settings[key]`` = ``values[key]`` when it is one of ``choices``; otherwise a problem at
+    ``location`` saying ``message(value)``. Nothing when the key is not given."""
+    if key not in values:
+        return
+    if values[key] in choices:
+        settings[key] = values[key]
+    else:
+        problems.append(RulesetError(message(values[key]), location))
+
+
 def _build_open_regions(merged: _Merged, measures: Mapping[str, Any], problems: list[RulesetError]) -> OpenRegions:
     values, where = merged.open_regions, merged.open_regions_where
     whole = SourceLocation(merged.path, 1)
     settings: dict[str, Any] = {}
     choices = " or ".join(repr(choice) for choice in OPEN_REGION_SETTINGS)
-    if "default" in values:
-        if values["default"] in OPEN_REGION_SETTINGS:
-            settings["default"] = values["default"]
-        else:
-            problems.append(RulesetError(f"open_regions {values['default']!r} is not {choices} (isometric: regions no "
-                                         "rule measures keep their proportions; free: the solver may change them)",
-                                         where.get("default", whole)))
-    if "hold" in values:
-        if values["hold"] in OPEN_REGION_HOLDS:
-            settings["hold"] = values["hold"]
-        else:
-            holds = " or ".join(repr(choice) for choice in OPEN_REGION_HOLDS)
-            problems.append(RulesetError(f"open_regions.hold {values['hold']!r} is not {holds} (shape: each open region "
-                                         "keeps its input shape, scaled isometrically; soft: energy terms on its "
-                                         "measures)", where.get("hold", whole)))
+    _take_choice(values, "default", OPEN_REGION_SETTINGS, settings, problems, where.get("default", whole),
+                 lambda value: f"open_regions {value!r} is not {choices} (isometric: regions no rule measures keep "
+                               "their proportions; free: the solver may change them)")
+    holds = " or ".join(repr(choice) for choice in OPEN_REGION_HOLDS)
+    _take_choice(values, "hold", OPEN_REGION_HOLDS, settings, problems, where.get("hold", whole),
+                 lambda value: f"open_regions.hold {value!r} is not {holds} (shape: each open region keeps its input "
+                               "shape, scaled isometrically; soft: energy terms on its measures)")
     if "weight" in values and _check_finite(values["weight"], "open_regions.weight", where.get("weight", whole), problems):
         settings["weight"] = float(values["weight"])
     if "measures" in values:
@@ -517,23 +523,11 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
             problems.append(RulesetError(f"solver.alpha_bounds must contain 0 (α = 0 is no change), not {values[key]}", at))
             continue
         settings[key] = (float(low), float(high))
-    if "transform" in values:
-        from allorules.rules.model import TRANSFORM_FORMS
-
-        if values["transform"] in TRANSFORM_FORMS:
-            settings["transform"] = values["transform"]
-        else:
-            problems.append(RulesetError(f"solver.transform {values['transform']!r} is not a transform form; use "
-                                         f"{' or '.join(TRANSFORM_FORMS)}", where.get("transform", whole)))
-    if "posture" in values:
-        from allorules.rules.model import POSTURES
-
-        if values["posture"] in POSTURES:
-            settings["posture"] = values["posture"]
-        else:
-            problems.append(RulesetError(f"solver.posture {values['posture']!r} is not one of 'keep' (legs upright and "
-                                         "feet on the ground), 'upright' (legs upright) or 'free' (as Eq. 9 leaves them)",
-                                         where.get("posture", whole)))
+    _take_choice(values, "transform", TRANSFORM_FORMS, settings, problems, where.get("transform", whole),
+                 lambda value: f"solver.transform {value!r} is not a transform form; use {' or '.join(TRANSFORM_FORMS)}")
+    _take_choice(values, "posture", POSTURES, settings, problems, where.get("posture", whole),
+                 lambda value: f"solver.posture {value!r} is not one of 'keep' (legs upright and feet on the ground), "
+                               "'upright' (legs upright) or 'free' (as Eq. 9 leaves them)")
     if "detail_cutoff" in values:
         cutoff = values["detail_cutoff"]
         if cutoff is None:
