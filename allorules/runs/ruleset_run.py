@@ -180,12 +180,13 @@ def scale_with_ruleset(
         solving = time.perf_counter()
         again = 0.0                                     # time of a basis recomputed after a failed reuse
         corrections = _carried_misses(terms, anchors, reached, current, measure)
+        isometric = (reached * ratio) ** (1.0 / 3.0)    # a held part's size factor from the run's input
 
         def solve(step_ruleset, step_basis_):
             return solve_step(current, step_basis_, step_ruleset, registry, ratio, measure=measure, jacobian=jacobian,
                               start=start, on_trial=progress.trial, corrections=corrections,
                               constraint_reference=(initial, reached * ratio), extra_terms=open_terms,
-                              extra_regions=appendages, held=held, held_scale=(reached * ratio) ** (1.0 / 3.0))
+                              extra_regions=appendages, held=held, held_scale=isometric)
 
         try:
             solution = solve(_capped(ruleset) if reused else ruleset, basis)
@@ -218,7 +219,7 @@ def scale_with_ruleset(
             following = following.with_vertices(solution.feet.apply(following.vertices, solution.scale))
         if held.parts:
             # the feet's shift reaches every vertex: the held parts given their shape once more
-            following = following.with_vertices(held.apply(following.vertices, (reached * ratio) ** (1.0 / 3.0)))
+            following = following.with_vertices(held.apply(following.vertices, isometric))
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
         mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
         stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None
