@@ -5,7 +5,6 @@ message naming the file (and a line when one is known).
 """
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,6 @@ from allorules.rules.model import Ruleset
 from allorules.rules.resolve import load_ruleset
 
 REGISTRY = registry_for([], entry_points=False)
-FOLDER = Path(tempfile.mkdtemp(prefix="allorules-fuzz-"))
 
 KEYS = ["name", "description", "extends", "plugins", "segmenter", "regions", "body_mass", "rules",
         "constraints", "solver", "id", "region", "measure", "exponent", "weight", "source", "remove",
@@ -80,10 +78,17 @@ def near_valid_documents(draw):
     return document
 
 
-def assert_loads_or_reports(text: str) -> None:
-    path = FOLDER / "fuzz.yaml"
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    """Where the fuzzed documents are written (module-scoped: hypothesis reruns each test many times,
+    and pytest removes the folder afterwards)."""
+    return tmp_path_factory.mktemp("fuzz")
+
+
+def assert_loads_or_reports(folder: Path, text: str) -> None:
+    path = folder / "fuzz.yaml"
     path.write_text(text, encoding="utf-8")
-    (FOLDER / "other.yaml").write_text("extends: fuzz.yaml\n", encoding="utf-8")
+    (folder / "other.yaml").write_text("extends: fuzz.yaml\n", encoding="utf-8")
     try:
         ruleset = load_ruleset(path, REGISTRY)
     except RulesetError as error:
@@ -101,25 +106,25 @@ FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCh
 
 @FUZZ
 @given(near_valid_documents())
-def test_near_valid_documents_never_end_in_a_traceback(document):
-    assert_loads_or_reports(yaml.safe_dump(document, allow_unicode=True))
+def test_near_valid_documents_never_end_in_a_traceback(folder, document):
+    assert_loads_or_reports(folder, yaml.safe_dump(document, allow_unicode=True))
 
 
 @FUZZ
 @given(values)
-def test_arbitrary_yaml_values_never_end_in_a_traceback(document):
-    assert_loads_or_reports(yaml.safe_dump(document, allow_unicode=True))
+def test_arbitrary_yaml_values_never_end_in_a_traceback(folder, document):
+    assert_loads_or_reports(folder, yaml.safe_dump(document, allow_unicode=True))
 
 
 @FUZZ
 @given(st.text(alphabet=st.sampled_from(list("abx:-[]{}#&*!|>'\"%@`,?\n\t 0123456789.e")), max_size=80))
-def test_arbitrary_text_never_ends_in_a_traceback(text):
-    assert_loads_or_reports(text)
+def test_arbitrary_text_never_ends_in_a_traceback(folder, text):
+    assert_loads_or_reports(folder, text)
 
 
 @FUZZ
 @given(st.sampled_from(["quadruped", "neck-override", "isometric", "intraspecies"]), st.data())
-def test_mutated_builtin_rulesets_never_end_in_a_traceback(name, data):
+def test_mutated_builtin_rulesets_never_end_in_a_traceback(folder, name, data):
     from allorules.rules.find import builtin_ruleset_folder
 
     lines = (builtin_ruleset_folder() / f"{name}.yaml").read_text(encoding="utf-8").splitlines()
@@ -139,7 +144,7 @@ def test_mutated_builtin_rulesets_never_end_in_a_traceback(name, data):
             lines[index] = lines[index][:position] + data.draw(st.text(max_size=3)) + lines[index][position:]
         if not lines:
             break
-    assert_loads_or_reports("\n".join(lines) + "\n")
+    assert_loads_or_reports(folder, "\n".join(lines) + "\n")
 
 
 @pytest.mark.parametrize("text", [
@@ -152,8 +157,8 @@ def test_mutated_builtin_rulesets_never_end_in_a_traceback(name, data):
     "regions: [a]\nrules: []\n---\nregions: [b]\n",  # two documents
     "exponent: !!binary aGVsbG8=\n",
 ])
-def test_awkward_yaml(text):
-    assert_loads_or_reports(text)
+def test_awkward_yaml(folder, text):
+    assert_loads_or_reports(folder, text)
 
 
 def test_control_characters_are_reported_with_their_line(tmp_path):
