@@ -308,9 +308,7 @@ def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, 
                                                held_ids, EXPONENT_TOLERANCE, held.regions if held else ())
     for outcome in result.open_regions:
         if not outcome.met:
-            achieved = "not measured" if outcome.achieved_exponent is None else f"{outcome.achieved_exponent:.3f}"
-            result.warnings.append(f"open region {outcome.region}: {outcome.measure} exponent {achieved}, isometric "
-                                   f"{outcome.isometric_exponent:.3f} (±{outcome.tolerance})")
+            result.warnings.append(outcome.summary())
 
 
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=(),

@@ -124,6 +124,12 @@ class OpenRegionOutcome:
             return True
         return self.achieved_exponent is not None and abs(self.achieved_exponent - self.isometric_exponent) <= self.tolerance
 
+    def summary(self) -> str:
+        """One phrase: what the measure's exponent reached against isometric."""
+        achieved = "not measured" if self.achieved_exponent is None else f"{self.achieved_exponent:.3f}"
+        return (f"open region {self.region}: {self.measure} exponent {achieved}, isometric "
+                f"{self.isometric_exponent:.3f} (±{self.tolerance})")
+
     def as_dict(self) -> dict:
         return {"region": self.region, "setting": self.setting, "measure": self.measure, "held": self.held,
                 "hold": self.hold,
