@@ -6,6 +6,8 @@ untouched beyond the blend zones, and no tear at an opening. Then the whole run 
 quadruped at ×2 and ×0.5: the neck (and the tail) isometric while every rule of ``quadruped`` is met."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -163,12 +165,13 @@ def test_an_appendage_keeps_its_set_on_the_body_when_eq9_swings_it(horse_held):
     assert np.allclose(result[tail.members], body.vertices[tail.members], atol=1e-9)
 
 
-def test_a_run_the_shape_hold_cannot_meet_is_made_again_with_soft_terms(generated_horse, monkeypatch):
-    """The pipeline's fallback (runs/pipeline.py): held by their shape the open regions left a
-    target missed (the real horse at ×2), so the run is made again with ``hold: soft`` on the body
-    folded as that setting folds it, and kept with a warning only when it meets every target with
-    every open region within the tolerance of isometric; when it misses, or meets the rules by
-    letting the neck go (the real horse: neck length 0.515), the first run is kept and says so."""
+def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft_terms(generated_horse, monkeypatch):
+    """The pipeline's fallbacks (runs/pipeline.py): held by their shape the open regions left a
+    target missed (the real horse at ×2), so the run is made again with the trunk's stretch as one
+    more variable, kept when it meets every target; else with ``hold: soft`` on the body folded as
+    that setting folds it, kept only when it meets every target with every open region within the
+    tolerance of isometric; when it misses, or meets the rules by letting the neck go (the real
+    horse: neck length 0.515), the first run is kept and says so."""
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
     from allorules.runs.results import BiologyScalingResult
@@ -177,32 +180,46 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_with_soft_terms(generate
     body = generated_horse.body()                     # its labels keep the tail apart
     assert "tail" in body.region_names
     calls = []
-    soft_neck = {"meets": 0.345, "strays": 0.515, "misses": 0.345}
+    # case: (the stretched run converges, the soft run converges, the soft run's neck length exponent)
+    cases = {"stretch meets": (True, True, 0.345), "soft meets": (False, True, 0.345),
+             "soft strays": (False, True, 0.515), "all miss": (False, False, 0.345)}
 
     def fake(labelled, ruleset, ratio, **options):
-        calls.append((ruleset.open_regions.hold, labelled.region_names))
-        shape = ruleset.open_regions.hold == "shape"
-        outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, 1 / 3 if shape else soft_neck[case], True,
-                                    0.02, ruleset.open_regions.hold)
-        converged = not shape and case != "misses"
+        hold, stretch = ruleset.open_regions.hold, ruleset.solver.trunk_stretch
+        calls.append((hold, stretch, labelled.region_names))
+        stretch_meets, soft_meets, soft_neck = cases[case]
+        converged = stretch_meets if stretch == "on" else soft_meets if hold == "soft" else False
+        outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, soft_neck if hold == "soft" else 1 / 3, True,
+                                    0.02, hold)
         return BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=converged,
                                     messages=[] if converged else ["mass ratio 1.9212, target 2.0000"],
                                     open_regions=[outcome])
 
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
     scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0)
-    for case in soft_neck:
+    for case in cases:
         calls.clear()
         result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-        assert [hold for hold, _ in calls] == ["shape", "soft"]
-        assert "tail" in calls[0][1] and "tail" not in calls[1][1]        # soft folds the tail into the abdomen
-        if case == "meets":
+        tried = [(hold, stretch) for hold, stretch, _ in calls]
+        if case == "stretch meets":
+            assert tried == [("shape", "when-needed"), ("shape", "on")]
+            assert result.converged and "trunk lengthened along the body (length exponent" in result.warnings[0]
+            continue
+        assert tried == [("shape", "when-needed"), ("shape", "on"), ("soft", "when-needed")]
+        assert "tail" in calls[1][2] and "tail" not in calls[2][2]        # soft folds the tail into the abdomen
+        if case == "soft meets":
             assert result.converged and result.open_regions[0].hold == "soft"
             assert "held by soft terms instead" in result.warnings[0]
         else:
             assert not result.converged and result.open_regions[0].hold == "shape"
-            assert "did not help" in result.warnings[-1]
-            assert ("length exponent 0.515" in result.warnings[-1]) == (case == "strays")
+            assert "the run missed too" in result.warnings[-2] and "did not help" in result.warnings[-1]
+            assert ("length exponent 0.515" in result.warnings[-1]) == (case == "soft strays")
+    # a ruleset that turns the stretch off goes straight to soft terms
+    calls.clear()
+    case = "soft meets"
+    off = replace(scaling.ruleset, solver=replace(scaling.ruleset.solver, trunk_stretch="off"))
+    pipeline.scale(body, pipeline.RulesetScaling(off, 2.0), registry=pipeline.registry_for(None))
+    assert [(hold, stretch) for hold, stretch, _ in calls] == [("shape", "off"), ("soft", "off")]
     calls.clear()
     monkeypatch.setattr(pipeline, "scale_with_ruleset",
                         lambda labelled, ruleset, ratio, **options: calls.append(1) or BiologyScalingResult(

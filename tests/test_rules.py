@@ -364,6 +364,7 @@ def test_solver_errors(tmp_path, registry):
         "solver: {relative_tolerance: 0}": "greater than 0",
         "solver: {transform: per-vertex}": "per-mode",
         "solver: {posture: standing}": "posture",
+        "solver: {trunk_stretch: sometimes}": "solver.trunk_stretch 'sometimes' is not one of 'when-needed', 'on', 'off'",
     }
     for line, message in cases.items():
         _, problems = single_problem(tmp_path, MINIMAL + line + "\n", registry)
@@ -377,6 +378,10 @@ def test_transform_form_and_posture_are_the_methods_unless_the_ruleset_says(tmp_
     assert (ruleset.solver.transform, ruleset.solver.posture) == ("per-mode", "free")
     ruleset = load_ruleset(write(tmp_path, "upright.yaml", MINIMAL + "solver: {posture: upright}\n"), registry)
     assert ruleset.solver.posture == "upright"
+    assert solver.trunk_stretch == "when-needed"
+    for written, meant in (("'off'", "off"), ("off", "off"), ("on", "on"), ("when-needed", "when-needed")):
+        ruleset = load_ruleset(write(tmp_path, "trunk.yaml", MINIMAL + f"solver: {{trunk_stretch: {written}}}\n"), registry)
+        assert ruleset.solver.trunk_stretch == meant
 
 
 def test_numbers_without_a_dot_are_numbers(tmp_path, registry):

@@ -68,6 +68,7 @@ class SolverSettings:
     transform: str = "per-axis"     # METHOD §5, in the animal's own axes; or "per-mode" (docs/biology-scaling.md)
     posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.solve.posture)
     detail_cutoff: float | None = None   # Eq. 9 on the base only, detail kept (power_laws.DetailLayer); None: every mode
+    trunk_stretch: str = "when-needed"   # the trunk's length as one more variable: "on", "off", or "when-needed" (TRUNK_STRETCH)
 
 
 OPEN_REGION_SETTINGS = ("isometric", "free")
@@ -181,6 +182,7 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "parameter_tolerance": solver.parameter_tolerance, "max_evaluations": solver.max_evaluations,
         "scale_bounds": list(solver.scale_bounds), "alpha_bounds": list(solver.alpha_bounds),
         "transform": solver.transform, "posture": solver.posture, "detail_cutoff": solver.detail_cutoff,
+        "trunk_stretch": solver.trunk_stretch,
     }
     opened = ruleset.open_regions
     document["open_regions"] = {"default": opened.default, "hold": opened.hold, "weight": opened.weight, "measures": list(opened.measures),
@@ -201,6 +203,12 @@ def dump_ruleset(ruleset: Ruleset) -> str:
 
 
 TRANSFORM_FORMS = ("per-axis", "per-mode")
+
+
+# solver.trunk_stretch of a ruleset (allorules/solve/transform.py, docs/method.md): the variable δ that
+# lengthens the trunk along the animal's forward axis; "when-needed": only in a second run, when a
+# run without it misses its targets with the open regions held by their shape (runs/pipeline.py).
+TRUNK_STRETCH = ("when-needed", "on", "off")
 
 
 # solver.posture of a ruleset: legs upright and feet on the ground; legs upright only; neither.

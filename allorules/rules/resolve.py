@@ -24,6 +24,7 @@ from allorules.rules.model import (
     OPEN_REGION_SETTINGS,
     POSTURES,
     TRANSFORM_FORMS,
+    TRUNK_STRETCH,
     BodyMassTerm,
     ConstraintUse,
     OpenRegions,
@@ -528,6 +529,10 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
     _take_choice(values, "posture", POSTURES, settings, problems, where.get("posture", whole),
                  lambda value: f"solver.posture {value!r} is not one of 'keep' (legs upright and feet on the ground), "
                                "'upright' (legs upright) or 'free' (as Eq. 9 leaves them)")
+    if isinstance(values.get("trunk_stretch"), bool):    # YAML reads a bare on/off (yes/no) as a boolean
+        values = {**values, "trunk_stretch": "on" if values["trunk_stretch"] else "off"}
+    _take_choice(values, "trunk_stretch", TRUNK_STRETCH, settings, problems, where.get("trunk_stretch", whole),
+                 lambda value: f"solver.trunk_stretch {value!r} is not one of {', '.join(map(repr, TRUNK_STRETCH))}")
     if "detail_cutoff" in values:
         cutoff = values["detail_cutoff"]
         if cutoff is None:

@@ -96,6 +96,7 @@ class RulesetStep:
     modes: int
     basis_seconds: float = 0.0       # wall time of the step's basis
     solve_seconds: float = 0.0       # wall time of the step's solve (trial meshes and their measures)
+    trunk_stretch: float | None = None   # δ of the step, when solver.trunk_stretch was on
 
     def as_dict(self) -> dict:
         return {
@@ -103,6 +104,7 @@ class RulesetStep:
             "scale": float(self.scale),
             "alpha0": float(self.alpha0),
             "alphas": {key: float(value) for key, value in self.alphas.items()},
+            "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "energy": float(self.energy),
             "evaluations": int(self.evaluations),

@@ -165,6 +165,12 @@ def scale_with_ruleset(
     terms = energy_terms(ruleset) + open_terms
     anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
     reached = 1.0                                       # the mass ratio planned up to this step
+    # δ, the trunk's stretch, as one more variable ("when-needed": runs/pipeline.py); along the
+    # animal's forward axis, so with the per-axis transform only
+    stretch = ruleset.solver.trunk_stretch == "on" and ruleset.solver.transform == "per-axis"
+    if ruleset.solver.trunk_stretch == "on" and not stretch:
+        result.warnings.append("solver.trunk_stretch is on but the transform is per-mode, which has no forward axis: "
+                               "the trunk was not stretched")
     progress = progress or RunProgress()
     every = BASIS_EVERY if basis_every is None else int(basis_every)
     for index, ratio in enumerate(ratios):
@@ -186,7 +192,8 @@ def scale_with_ruleset(
             return solve_step(current, step_basis_, step_ruleset, registry, ratio, measure=measure, jacobian=jacobian,
                               start=start, on_trial=progress.trial, corrections=corrections,
                               constraint_reference=(initial, reached * ratio), extra_terms=open_terms,
-                              extra_regions=appendages, held=held, held_scale=isometric)
+                              extra_regions=appendages, held=held, held_scale=isometric,
+                              trunk_stretch=stretch)
 
         try:
             solution = solve(_capped(ruleset) if reused else ruleset, basis)
@@ -229,9 +236,11 @@ def scale_with_ruleset(
             status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
             flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
             basis_seconds=solving - started + again, solve_seconds=solved - solving - again,
+            trunk_stretch=solution.trunk_stretch,
         ))
-        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, %d trials, %s", index + 1, len(ratios), solution.scale,
-                  solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()}, solution.evaluations, solution.status)
+        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, δ = %s, %d trials, %s", index + 1, len(ratios),
+                  solution.scale, solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()},
+                  solution.trunk_stretch, solution.evaluations, solution.status)
         current = following
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))
@@ -292,8 +301,9 @@ def _report_posture(result: BiologyScalingResult, initial: Body, final: Body) ->
     except AllorulesError as error:   # a body whose limbs cannot be measured: say so, do not fail the run
         log.warning("posture not measured: %s", error)
         return
-    result.warnings = posture_warnings(result.posture)
-    for warning in result.warnings:
+    warnings = posture_warnings(result.posture)
+    result.warnings.extend(warnings)        # after the run's own (a held part's note, an open region's)
+    for warning in warnings:
         log.warning("%s", warning)
 
 

@@ -20,7 +20,9 @@ Region coefficients are taken of the vertices *relative to the body's area-weigh
 where the mesh sits in space (Eq. 5 on raw coordinates would).
 
 **Variables**: ``(s, α_0, α_j for each ruleset region)``; start at s = r^(1/3), every α = 0
-(isometric scaling to the step's mass), which is already close for allometric exponents.
+(isometric scaling to the step's mass), which is already close for allometric exponents. With
+``solver.trunk_stretch`` on, one more: δ, the trunk's stretch along the animal's forward axis
+(:func:`allorules.spectral.power_laws.stretch_first_axis`, bounds ``TRUNK_STRETCH_BOUNDS``, start 0).
 
 **Energy** (Eq. 11 with relative residuals, METHOD §6): a weighted sum of squared relative
 residuals, one term per active part of the ruleset:
@@ -92,6 +94,7 @@ log = logging.getLogger("allorules")
 JACOBIAN_STEP_SCALE = 1e-3     # relative to s
 JACOBIAN_STEP_ALPHA = 1e-3
 GAUSS_NEWTON_TRIALS = 6
+TRUNK_STRETCH_BOUNDS = (-0.5, 0.5)   # δ per step (solver.trunk_stretch); the real horse at ×2 used 0.07-0.11
 
 
 # ---------------------------------------------------------------------------------------------
@@ -125,16 +128,19 @@ class StepSolution:
     failed_evaluations: int = 0
     jacobian: np.ndarray | None = field(default=None, repr=False)   # of the residual vector, for the next step
     feet: FootContact | None = field(default=None, repr=False)      # the step's foot contact (posture keep)
+    trunk_stretch: float | None = None                              # δ, when solver.trunk_stretch is on
 
     @property
     def variables(self) -> np.ndarray:
-        return np.array([self.scale, self.alpha0, *self.alphas.values()])
+        stretch = [] if self.trunk_stretch is None else [self.trunk_stretch]
+        return np.array([self.scale, self.alpha0, *self.alphas.values(), *stretch])
 
     def as_dict(self) -> dict:
         return {
             "scale": float(self.scale),
             "alpha0": float(self.alpha0),
             "alphas": {key: float(value) for key, value in self.alphas.items()},
+            "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
             "energy": float(self.energy),
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "evaluations": int(self.evaluations),
@@ -215,6 +221,7 @@ def solve_step(
     extra_regions: tuple[str, ...] = (),
     held: HeldRegions | None = None,
     held_scale: float = 1.0,
+    trunk_stretch: bool = False,
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
@@ -228,7 +235,8 @@ def solve_step(
     ``extra_terms`` (the open regions' soft isometric terms, :mod:`allorules.solve.open_regions`)
     join the energy; ``extra_regions`` (appendages the ruleset does not list) get an α_j each;
     ``held`` open regions are given their input shape × ``held_scale`` after Eq. 9
-    (:mod:`allorules.solve.held_regions`).
+    (:mod:`allorules.solve.held_regions`). ``trunk_stretch`` adds δ, the trunk's stretch along the
+    animal's forward axis, as the last variable (:func:`allorules.spectral.power_laws.stretch_first_axis`).
     ``solver.detail_cutoff`` splits the surface into base and detail (:class:`allorules.spectral.power_laws.DetailLayer`).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
@@ -236,16 +244,22 @@ def solve_step(
     measure = measure or cached_measure(registry)
     regions = tuple(ruleset.regions) + tuple(extra_regions)
     step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
-                            detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale)
+                            detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale,
+                            trunk_stretch=trunk_stretch)
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference,
                         extra_terms)
 
-    count = 2 + len(regions)
-    lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (count - 1)], dtype=float)
-    upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (count - 1)], dtype=float)
+    count = step.variable_count
+    stretched = step.trunk_gate is not None
+    lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (1 + len(regions)),
+                      *[TRUNK_STRETCH_BOUNDS[0]] * stretched], dtype=float)
+    upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (1 + len(regions)),
+                      *[TRUNK_STRETCH_BOUNDS[1]] * stretched], dtype=float)
     isometric = np.zeros(count)
     isometric[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
     isometric = np.clip(isometric, lower, upper)
+    if start is not None and len(start) != count:
+        start = None                                                   # the previous step had other variables
     start = isometric if start is None else np.clip(np.asarray(start, dtype=float), lower, upper)
     budget = int(settings.max_evaluations)
 
@@ -293,6 +307,7 @@ def solve_step(
         failed_evaluations=failed,
         jacobian=jacobian,
         feet=step.feet,
+        trunk_stretch=float(best.variables[-1]) if stretched else None,
     )
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from allorules.body import Body
+from allorules.measure.parts import TORSO_REGIONS
 from allorules.rules.model import TRANSFORM_FORMS
 from allorules.solve.held_regions import HeldRegions
 from allorules.solve.posture import FootContact
@@ -18,9 +19,11 @@ from allorules.spectral.power_laws import (
     detail_taper,
     dimensionless,
     from_mode_magnitudes,
+    geometric_mean_gate,
     mode_magnitudes,
     mode_shares,
     multi_region_power_law,
+    stretch_first_axis,
 )
 
 
@@ -75,13 +78,16 @@ class StepTransform:
     detail: DetailLayer | None = None  # solver.detail_cutoff: Eq. 9 on the base, the detail following it
     held: HeldRegions | None = None    # open regions held as a similarity of their input shape (solve/held_regions.py)
     held_scale: float = 1.0            # ... at this isometric factor from the run's input
+    trunk_gate: np.ndarray | None = None   # solver.trunk_stretch: G of the trunk's forward coefficients, per mode
 
     @classmethod
     def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
            keep_feet: bool = False, detail_cutoff: float | None = None, held: HeldRegions | None = None,
-           held_scale: float = 1.0) -> "StepTransform":
+           held_scale: float = 1.0, trunk_stretch: bool = False) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
+        if trunk_stretch and form != "per-axis":
+            raise ValueError("the trunk's stretch acts along the animal's forward axis: it needs the per-axis transform")
         # Eq. 5 about the body's area-weighted centroid (what mode 0 holds), see module docstring.
         centred = body.vertices - (basis.mass @ body.vertices) / basis.mass.sum()
         masks = [body.region_mask(region).astype(float) if body.has_region(region) else np.zeros(len(body.vertices))
@@ -98,19 +104,32 @@ class StepTransform:
             region_coefficients = together[:, 3 + 3 * number:6 + 3 * number]            # x̃_seg
             region_us.append(region_coefficients @ axes.T / c if form == "per-axis"
                              else mode_shares(region_coefficients, coefficients, c))
+        trunk_gate = None
+        trunk = [region_u for region, region_u in zip(regions, region_us) if region in TORSO_REGIONS]
+        if trunk_stretch and trunk:
+            trunk_gate = geometric_mean_gate(u[:, 0], sum(trunk)[:, 0])
         feet = FootContact.of(body) if keep_feet else None
         detail = None
         if detail_cutoff is not None:
             taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
             detail = DetailLayer(basis, body.vertices, coefficients, taper)
         return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail, held,
-                   float(held_scale))
+                   float(held_scale), trunk_gate)
+
+    @property
+    def variable_count(self) -> int:
+        """(s, α_0, one α_j per region[, δ the trunk's stretch])."""
+        return 2 + len(self.regions) + (self.trunk_gate is not None)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k)`` (Eq. 9 with detail kept; then the feet put back; then
-        the held open regions given their input shape)."""
-        scale, alpha0, alphas = float(variables[0]), float(variables[1]), [float(a) for a in variables[2:]]
+        """Vertices for ``(s, α_0, α_1 … α_k[, δ])`` (Eq. 9 with detail kept, the trunk stretched by δ;
+        then the feet put back; then the held open regions given their input shape)."""
+        count = len(self.regions)
+        scale, alpha0 = float(variables[0]), float(variables[1])
+        alphas = [float(a) for a in variables[2:2 + count]]
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
+        if self.trunk_gate is not None:
+            u_new = stretch_first_axis(u_new, self.trunk_gate, float(variables[2 + count]))
         if self.form == "per-axis":
             # x̃' = x̃ + c·(u' − u), the change taken in the animal's axes and turned back to the
             # mesh's; exactly x̃ where u' = u

@@ -236,6 +236,21 @@ def multi_region_power_law(
     return result
 
 
+def stretch_first_axis(u: np.ndarray, gate: np.ndarray, stretch: float) -> np.ndarray:
+    """The trunk's stretch (docs/method.md, "the trunk's length"; an extension of Eq. 9), per axis:
+
+        u'_i,0 = u_i,0 · (1 + δ · g_i)   for i ≥ 1;   the other axes and mode 0 untouched,
+
+    with axis 0 the animal's forward axis and g_i = G(u_i,0, u_T,i,0) the gate of Eq. 7 between the
+    body's and the trunk's forward coefficients. Eq. 9's power law barely moves coefficients near
+    |u| = 1, which carry a region's extent; this factor does, so the trunk can grow longer without
+    growing round. δ = 0 returns ``u`` unchanged."""
+    result = np.array(u, dtype=float, copy=True)
+    if stretch != 0.0:
+        result[1:, 0] *= 1.0 + stretch * np.asarray(gate, dtype=float)[1:]
+    return result
+
+
 def arithmetic_region_scaling(coefficients: np.ndarray, region_coefficients: np.ndarray, factor: float) -> np.ndarray:
     """The paper's bad example (§3.2, Fig. 14), for comparison only.
 
