@@ -287,6 +287,12 @@ def scale(body: Body, scaling: Scaling, *, registry: PluginRegistry, modes: int 
     raise TypeError(f"not a kind of scaling: {scaling!r}")
 
 
+# A run that met the rules with the trunk's stretch (solver.trunk_stretch) is kept only when the trunk's
+# length exponent stays within this of isometric: the real horse at ×2 needed 0.384; unbounded, the
+# stretch drew the Princeton donkey's trunk out to half again its length with every rule met.
+TRUNK_LENGTH_TOLERANCE = 0.1
+
+
 def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: PluginRegistry, modes: int | None,
                         use_cache: bool, progress: RunProgress | None) -> BiologyScalingResult:
     """A ruleset run, and what is tried when it misses with its open regions held by their shape
@@ -294,7 +300,8 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
 
     1. with ``solver.trunk_stretch: when-needed`` (the default) and the per-axis transform, the run
        is made again with δ, the trunk's stretch along the body, as one more variable, and kept
-       if it meets every target (a warning says how much longer the trunk grew). The rules can ask
+       if it meets every target with the trunk's length exponent within ``TRUNK_LENGTH_TOLERANCE``
+       of isometric (a warning says how much longer the trunk grew). The rules can ask
        the chest for more mass than its heart girth allows (the real horse at ×2: mass exponent
        1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing what
        no rule measures (docs/method.md, the trunk's length);
@@ -314,19 +321,27 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
             outcome.held and outcome.hold == "shape" for outcome in result.open_regions):
         return result
     missed = result.messages[0] if result.messages else "a target missed"
+    tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
     if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
         log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with the "
                     "trunk's length along the body as one more variable", missed)
         stretched = run(replace(scaling.ruleset, solver=replace(solver, trunk_stretch="on")), body)
-        if stretched.converged:
+        trunk = _trunk_length_exponent(body, stretched, registry) if stretched.converged else None
+        if trunk is not None and abs(trunk - 1.0 / 3.0) <= TRUNK_LENGTH_TOLERANCE:
             stretched.warnings.insert(0, f"the open regions held by their shape, the rules were met only with the trunk "
-                                         f"lengthened along the body ({_trunk_growth(body, stretched, registry)}; "
-                                         "solver.trunk_stretch); without it: " + missed)
+                                         f"lengthened along the body (length exponent {trunk:.3f}, isometric 0.333; "
+                                         f"solver.trunk_stretch); without it: {missed}")
             log.warning("%s", stretched.warnings[0])
             return stretched
-        result.warnings.append("with the trunk's length as one more variable the run missed too ("
-                               + (stretched.messages[0] if stretched.messages else "a target missed") + ")")
-        log.warning("%s", result.warnings[-1])
+        if not stretched.converged:
+            why = stretched.messages[0] if stretched.messages else "a target missed"
+        elif trunk is None:
+            why = "it met the rules but the trunk's length could not be measured"
+        else:
+            why = (f"it met the rules only with the trunk's length at exponent {trunk:.3f}, beyond "
+                   f"{1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE}")
+        tried.append(f"with the trunk's length as one more variable the run did not help ({why})")
+        log.warning("%s", tried[-1])
     log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with them "
                 "held by soft terms", missed)
     soft = replace(scaling.ruleset, open_regions=replace(opened, hold="soft"))
@@ -335,29 +350,31 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     if not again.converged or strayed:
         why = (again.messages[0] if again.messages else "a target missed") if not again.converged else (
             "it met the rules but " + "; ".join(outcome.summary() for outcome in strayed))
-        result.warnings.append(f"held by soft terms instead of by their shape, the open regions did not help ({why}); "
-                               "the run held by shape is kept; to let them take up the difference anyway, give a "
-                               "ruleset with open_regions: {hold: soft} (docs/rulesets.md)")
-        log.warning("%s", result.warnings[-1])
+        tried.append(f"held by soft terms instead of by their shape, the open regions did not help ({why}); "
+                     "the run held by shape is kept; to let them take up the difference anyway, give a "
+                     "ruleset with open_regions: {hold: soft} (docs/rulesets.md)")
+        log.warning("%s", tried[-1])
+        result.warnings.extend(tried)
         return result
-    again.warnings.insert(0, f"the open regions could not be held by their shape with every target met ({missed}); "
-                             "they were held by soft terms instead (hold: soft), each within the tolerance of "
-                             "isometric: see open_regions in the report")
+    again.warnings[:0] = [f"the open regions could not be held by their shape with every target met ({missed}); "
+                          "they were held by soft terms instead (hold: soft), each within the tolerance of "
+                          "isometric: see open_regions in the report", *tried]
     log.warning("%s", again.warnings[0])
     return again
 
 
-def _trunk_growth(body: Body, result: BiologyScalingResult, registry: PluginRegistry) -> str:
-    """How the trunk's length (chest and abdomen, measured along their skeletons) changed over a run,
-    as an exponent against isometric's 1/3."""
+def _trunk_length_exponent(body: Body, result: BiologyScalingResult, registry: PluginRegistry) -> float | None:
+    """The exponent of the trunk's length (chest and abdomen, each along its skeleton) over a run,
+    or ``None`` where it cannot be measured."""
     measure = cached_measure(registry)
     final = result.body.with_vertices(result.body.vertices.copy())
     try:
         before = sum(measure("length", body, region) for region in TORSO_REGIONS)
         after = sum(measure("length", final, region) for region in TORSO_REGIONS)
     except AllorulesError as error:
-        return f"its length not measured: {error}"
-    return f"length exponent {math.log(after / before) / math.log(result.target_mass_ratio):.3f}, isometric 0.333"
+        log.debug("trunk length not measured: %s", error)
+        return None
+    return math.log(after / before) / math.log(result.target_mass_ratio)
 
 
 def place(body: Body, result: Result, placement: str = "ground") -> tuple[Result, str]:
