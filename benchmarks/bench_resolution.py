@@ -117,15 +117,15 @@ def one_run(variant: Path, output: Path, mass_ratio: float, working_vertices: in
     registry = registry_for(None)
     ruleset = load_ruleset("quadruped", registry)
     record = {"variant": variant.stem, "vertices": int(len(body.vertices)), "direct": direct}
-    if direct:      # today's path: label and scale the body itself
-        from allorules.runs.ruleset_run import scale_with_ruleset
-        from allorules.segment.labeller import label_quadruped
+    if direct:      # the yardstick: label and scale the body itself (the pipeline's scale stage, its fallbacks included)
+        from allorules.runs import pipeline
 
         started = time.perf_counter()
-        labelled = label_quadruped(body)
+        labelled = pipeline.label(body, registry=registry, regions=pipeline.wanted_regions(ruleset))
         timing["labels"] = time.perf_counter() - started
         started = time.perf_counter()
-        result = scale_with_ruleset(labelled, ruleset, mass_ratio, registry=registry, modes=modes, use_cache=False)
+        result = pipeline.scale(labelled, pipeline.RulesetScaling(ruleset, mass_ratio), registry=registry, modes=modes,
+                                use_cache=False)
         timing["run"] = time.perf_counter() - started
         vertices, labels, working = result.body.vertices, labelled.labels, None
         record["working"] = {"method": "direct", "vertices": int(len(body.vertices))}
@@ -167,8 +167,8 @@ def one_run(variant: Path, output: Path, mass_ratio: float, working_vertices: in
 
         started = time.perf_counter()
         measure = cached_measure(registry)
-        before = Body(body.vertices, body.faces, labels, run.region_names, run.labelled.frame)
-        after = Body(vertices, body.faces, labels, run.region_names, run.labelled.frame)
+        before = Body(body.vertices, body.faces, labels, run.body.region_names, run.body.frame)
+        after = Body(vertices, body.faces, labels, run.body.region_names, run.body.frame)
         record["full_resolution"] = {}
         for rule in ruleset.rules:
             try:
@@ -179,7 +179,7 @@ def one_run(variant: Path, output: Path, mass_ratio: float, working_vertices: in
         mass = measure("mass", before, None), measure("mass", after, None)
         record["full_resolution"]["mass_ratio"] = mass[1] / mass[0]
         record["full_resolution_seconds"] = time.perf_counter() - started
-    names = labelled.region_names if direct else run.region_names
+    names = labelled.region_names if direct else run.body.region_names
     np.savez(output.with_suffix(".npz"), labels=labels, vertices=vertices, input_vertices=body.vertices,
              faces=body.faces, region_names=np.array(names))
     output.write_text(json.dumps(record, indent=1, default=float))
