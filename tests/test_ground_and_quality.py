@@ -14,6 +14,9 @@ from allorules.measure.features import (
 )
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.quality import (
+    FEATURE_SHAPE_LIMIT,
+    ROUGHNESS_SHARE_LIMIT,
+    distortions,
     flipped_faces,
     intersecting_face_pairs,
     quality_report,
@@ -138,6 +141,25 @@ def test_small_features_of_the_generated_horse_are_its_ends(generated_horse):
     assert {"forelimbs", "hindlimbs", "tail", "head"} <= regions
     area = sum(f.area_share for f in features)
     assert area < 0.1                                          # small: legs and tail are not taken whole
+
+
+def test_distortions_name_lumps_and_mangled_features_beyond_the_limits(generated_horse):
+    """Uniform scaling is the same animal: nothing. Lumps all over (the pig 388's legs) and one
+    small feature crumpled (its snout) are each named, with their figure and the limit."""
+    body = generated_horse.body()
+    assert distortions(body, 1.7 * body.vertices + 3.0) == []
+    rng = np.random.default_rng(1)
+    scale = np.ptp(body.vertices, axis=0).max()
+    lumpy = body.vertices + rng.normal(scale=0.01 * scale, size=body.vertices.shape)
+    found = distortions(body, lumpy)
+    assert any("lumpy" in line and f"limit {100 * ROUGHNESS_SHARE_LIMIT:.0f}%" in line for line in found), found
+    feature = find_small_features(body.vertices, body.faces)[0]
+    crumpled = body.vertices.copy()
+    points = crumpled[feature.vertices]
+    size = np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))
+    crumpled[feature.vertices] += rng.normal(scale=0.6 * size, size=points.shape)
+    found = distortions(body, crumpled)
+    assert any("small feature" in line and f"limit {100 * FEATURE_SHAPE_LIMIT:.0f}%" in line for line in found), found
 
 
 def test_rule_checks_and_report_are_json_ready(generated_horse):

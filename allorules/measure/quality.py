@@ -37,6 +37,9 @@ __all__ = [
     "leg_stances",
     "rule_checks",
     "quality_report",
+    "distortions",
+    "FEATURE_SHAPE_LIMIT",
+    "ROUGHNESS_SHARE_LIMIT",
 ]
 
 
@@ -337,6 +340,34 @@ class QualityReport:
             "legs": [leg.as_dict() for leg in self.legs],
             "rules": [rule.as_dict() for rule in self.rules],
         }
+
+
+# A ruleset run whose output is beyond either limit is not converged, whatever its rules met (the
+# Princeton pigs 383 and 388 at ×2 met every rule with swollen, lumpy legs and mangled heads: the
+# dihedral angles changed by 0.65 and 0.79 of the input's own (RMS), worst features 0.34 and 0.46).
+# Outputs that look right measured 0.11-0.32 (the faceted bull 386: 0.26, where the 99th percentile
+# of the change, 28°, was larger than the pigs' smooth ones would suggest) and worst features
+# 0.04-0.17 (docs/method.md, small features).
+ROUGHNESS_SHARE_LIMIT = 0.5      # RMS change of the dihedral angles over the input's own RMS dihedral angle
+FEATURE_SHAPE_LIMIT = 0.3        # a small feature's shape change, in units of its size
+
+
+def distortions(before: Body, after: np.ndarray) -> list[str]:
+    """What makes ``after`` (vertex positions on ``before``'s faces) look other than the same
+    animal at another size, beyond the documented limits; one line each, empty when none."""
+    after = np.asarray(after, dtype=float)
+    found = []
+    roughness = surface_roughness(before.vertices, after, before.faces)
+    if roughness.rms_degrees > ROUGHNESS_SHARE_LIMIT * roughness.input_rms_degrees:
+        found.append(f"the surface is lumpy: its dihedral angles changed by {roughness.rms_degrees:.1f}° RMS, "
+                     f"{100 * roughness.rms_degrees / roughness.input_rms_degrees:.0f}% of the input's own "
+                     f"{roughness.input_rms_degrees:.1f}° (limit {100 * ROUGHNESS_SHARE_LIMIT:.0f}%)")
+    worst = next(iter(small_feature_changes(before, after)), None)
+    if worst is not None and worst.shape_change > FEATURE_SHAPE_LIMIT:
+        where = f" on the {worst.region}" if worst.region else ""
+        found.append(f"a small feature ({worst.feature}{where}) changed shape by {100 * worst.shape_change:.0f}% of its "
+                     f"size (limit {100 * FEATURE_SHAPE_LIMIT:.0f}%)")
+    return found
 
 
 def quality_report(before: Body, after: np.ndarray, *, rules: Iterable | None = None, tolerance: float = 0.02,

@@ -19,9 +19,10 @@ A run (METHOD §6):
   which differ from fresh measures of the output by up to ~0.7 %; on the real horse at R = 0.5
   that added up to a hind-leg exponent of 0.276 for 0.336 over 7 steps, each step on target.
   When every step's output measures as planned, every correction is 1 and this is METHOD §6.
-  The last step's miss has no next step to carry it: where its settled output misses by more
-  than ``LAST_STEP_MISS`` of exponent, the step is solved again with its targets moved by that
-  miss (up to ``LAST_STEP_REFITS`` times, kept while the worst miss shrinks).
+  The last step's miss has no next step to carry it: where its settled output misses the mass or
+  a rule by more than ``LAST_STEP_MISS`` of its tolerance, the step is solved again with its
+  targets moved by that miss (up to ``LAST_STEP_REFITS`` times, kept while the worst miss, in
+  units of its tolerance, shrinks).
   Constraints likewise compare each trial with the input at the mass ratio reached after the
   step (the limb-stress one: stress at the input's material section equal to the input's), which
   is how the whole run is judged, so their misses do not add up either.
@@ -44,6 +45,7 @@ import numpy as np
 
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
+from allorules.measure.quality import distortions
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.specs import ConstraintContext
@@ -76,7 +78,7 @@ log = logging.getLogger("allorules")
 BASIS_EVERY = 4
 REUSED_BASIS_TRIALS = 25
 LAST_STEP_REFITS = 2            # times the last step may be solved again for its output's fresh misses
-LAST_STEP_MISS = 0.005          # ... when one is worth more than this much exponent over the run
+LAST_STEP_MISS = 0.25           # ... when one is more than this share of its tolerance (mass, a rule's exponent)
 POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
 POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
 
@@ -226,10 +228,19 @@ def scale_with_ruleset(
             # once the legs are turned back, can miss by more than the step did (the donkey 385 at
             # ×2: the turn alone added 0.8 % to the abdomen's mass): the step is solved again with
             # its targets moved by that miss, kept while the worst miss shrinks.
+            # each miss in units of its tolerance over the run: mass ±1 %, a rule ±0.02 of exponent
+            # (the soft open-region terms are not judged)
+            mass_id, *rule_ids = [term.id for term in energy_terms(ruleset)]
+            allowed = {mass_id: math.log(1.0 + MASS_TOLERANCE),
+                       **{key: EXPONENT_TOLERANCE * abs(math.log(target)) for key in rule_ids}}
+
+            def worst_of(misses):
+                return max(abs(math.log(misses[key])) / allowed[key] for key in allowed)
+
             for _ in range(LAST_STEP_REFITS):
                 misses = _carried_misses(terms, anchors, reached * ratio, following, measure)
-                worst = max(abs(math.log(value)) for value in misses.values())
-                if worst <= LAST_STEP_MISS * abs(math.log(target)):
+                worst = worst_of(misses)
+                if worst <= LAST_STEP_MISS:
                     break
                 moved = {key: corrections[key] * misses[key] for key in corrections}
                 try:
@@ -238,7 +249,7 @@ def scale_with_ruleset(
                     break
                 candidate = _settled(current, refit, ruleset.solver.posture, last, held, isometric)
                 after = _carried_misses(terms, anchors, reached * ratio, candidate, measure)
-                if max(abs(math.log(value)) for value in after.values()) >= worst:
+                if worst_of(after) >= worst:
                     break
                 log.debug("last step solved again for its fresh misses %s", {k: round(v, 4) for k, v in misses.items()})
                 solution, following, corrections = refit, candidate, moved
@@ -391,6 +402,9 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
                 messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
+    if ratio != 1.0:
+        # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
+        messages.extend(f"the output looks distorted ({problem})" for problem in distortions(initial, final.vertices))
     result.converged = not messages
     result.messages.extend(messages)
     if messages:
