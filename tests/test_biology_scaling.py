@@ -130,6 +130,28 @@ def test_the_last_step_is_solved_again_for_what_its_output_misses(animal, regist
     assert not unrefitted.converged and unrefitted.mass_ratio > 2.04
 
 
+@pytest.mark.slow
+def test_a_stretched_run_reports_its_trunk_and_is_refused_beyond_the_tolerance(animal, registry, monkeypatch):
+    """solver.trunk_stretch: on adds δ to every step; the run's verdict checks the trunk's length
+    exponent (a trunk drawn out beyond 1/3 ± TRUNK_LENGTH_TOLERANCE is not converged, as the
+    donkey's 1.43 with every rule met)."""
+    from dataclasses import replace
+
+    from allorules.runs import ruleset_run
+
+    quadruped = load_ruleset("quadruped", registry)
+    stretched = replace(quadruped, solver=replace(quadruped.solver, trunk_stretch="on"))
+    result = _run(animal, registry, stretched, 2.0)
+    assert result.converged, result.messages
+    assert all(step.trunk_stretch is not None for step in result.steps)
+    assert abs(result.trunk_length_exponent - 1 / 3) <= ruleset_run.TRUNK_LENGTH_TOLERANCE
+    assert result.as_dict()["trunk_length_exponent"] == result.trunk_length_exponent
+    assert _run(animal, registry, quadruped, 2.0).trunk_length_exponent is None      # when-needed: not here
+    monkeypatch.setattr(ruleset_run, "TRUNK_LENGTH_TOLERANCE", abs(result.trunk_length_exponent - 1 / 3) / 2)
+    refused = _run(animal, registry, stretched, 2.0)
+    assert not refused.converged and any("trunk's length reached exponent" in message for message in refused.messages)
+
+
 def test_isometric_ruleset_is_uniform_scaling(animal, registry):
     from progress_recorder import RecordingProgress
 

@@ -45,6 +45,7 @@ import numpy as np
 
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
+from allorules.measure.parts import TORSO_REGIONS
 from allorules.measure.quality import distortions
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
@@ -54,6 +55,7 @@ from allorules.runs.results import (
     CONSTRAINT_TOLERANCE,
     EXPONENT_TOLERANCE,
     MASS_TOLERANCE,
+    TRUNK_LENGTH_TOLERANCE,
     BiologyScalingResult,
     RuleOutcome,
     RulesetStep,
@@ -213,7 +215,7 @@ def scale_with_ruleset(
                 solution = solve(ruleset, basis)
         except ScalingError as error:
             result.body = current
-            _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held)
+            _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
             result.converged = False
             message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
             result.messages.append(message)
@@ -272,7 +274,7 @@ def scale_with_ruleset(
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))
     result.body = current
-    _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held)
+    _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
     return result
 
 
@@ -293,6 +295,24 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         # the feet's shift reaches every vertex: the held parts given their shape once more
         following = following.with_vertices(held.apply(following.vertices, isometric))
     return following
+
+
+def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body, measure) -> list[str]:
+    """With the trunk's stretch: the trunk's length exponent over the run (chest and abdomen along
+    their skeletons, into ``result``), and what is wrong with it (beyond TRUNK_LENGTH_TOLERANCE of 1/3,
+    or not measurable)."""
+    regions = [region for region in TORSO_REGIONS if initial.has_region(region)]
+    try:
+        before = sum(measure("length", initial, region) for region in regions)
+        after = sum(measure("length", final, region) for region in regions)
+    except AllorulesError as error:
+        return [f"the trunk's length could not be measured to check the trunk's stretch: {error}"]
+    exponent = math.log(after / before) / math.log(result.target_mass_ratio)
+    result.trunk_length_exponent = exponent
+    if abs(exponent - 1.0 / 3.0) > TRUNK_LENGTH_TOLERANCE:
+        return [f"the trunk's length reached exponent {exponent:.3f} with the trunk's stretch, beyond "
+                f"{1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE} (solver.trunk_stretch)"]
+    return []
 
 
 def _capped(ruleset):
@@ -368,7 +388,7 @@ def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, 
 
 
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=(),
-            held: HeldRegions | None = None) -> None:
+            held: HeldRegions | None = None, stretched: bool = False) -> None:
     """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
     final = _fresh(result.body)
     if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
@@ -402,6 +422,8 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
                 messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
+    if stretched and ratio != 1.0:
+        messages.extend(_check_trunk_length(result, initial, final, measure))
     if ratio != 1.0:
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         messages.extend(f"the output looks distorted ({problem})" for problem in distortions(initial, final.vertices))
