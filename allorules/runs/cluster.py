@@ -39,6 +39,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import signal
 import tempfile
 import threading
 import time
@@ -506,9 +507,17 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
     in_flight: dict[Any, Job] = {}
     watch = _ClusterWatch(client)
     told_version: set[str] = set()
+    # Ctrl-C only sets a flag that the loop reads: raised wherever it lands, a KeyboardInterrupt can
+    # be swallowed inside distributed's client calls (seen once in CI: the batch ran to the end)
+    interrupted = threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, lambda number, frame: interrupted.set())
     try:
         watch.update(set(), progress)
         while queue or in_flight:
+            if interrupted.is_set():
+                raise KeyboardInterrupt
             while queue and len(in_flight) < max(4, 2 * watch.threads()):
                 job = queue.popleft()
                 payload = job_payload(job, fingerprints[job.id], rulesets.get(job.ruleset),
@@ -560,3 +569,6 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
                 pass
             log.warning("cluster: cancelled %d job%s in flight", len(in_flight), "" if len(in_flight) == 1 else "s")
         raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
