@@ -236,8 +236,7 @@ def main() -> None:
         if arguments.reuse and output.exists():       # a run of an earlier invocation, read back
             finished = subprocess.CompletedProcess(command, 0, "", "")
         else:
-            environment = dict(os.environ)
-        finished = subprocess.run(command, capture_output=True, text=True, env=environment)
+            finished = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ))
         if finished.returncode != 0:
             print(f"{animal} {size}: FAILED\n{finished.stderr[-2000:]}")
             return None
