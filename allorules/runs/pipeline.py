@@ -318,9 +318,10 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
                     "trunk's length along the body as one more variable", missed)
         stretched = run(replace(scaling.ruleset, solver=replace(solver, trunk_stretch="on")), body)
         if stretched.converged:
+            trunk = stretched.trunk_length_exponent
+            grown = "" if trunk is None else f"length exponent {trunk:.3f}, isometric 0.333; "
             stretched.warnings.insert(0, f"the open regions held by their shape, the rules were met only with the trunk "
-                                         f"lengthened along the body (length exponent {stretched.trunk_length_exponent:.3f}, "
-                                         f"isometric 0.333; solver.trunk_stretch); without it: {missed}")
+                                         f"lengthened along the body ({grown}solver.trunk_stretch); without it: {missed}")
             log.warning("%s", stretched.warnings[0])
             return stretched
         why = stretched.messages[0] if stretched.messages else "a target missed"

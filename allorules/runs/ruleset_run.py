@@ -302,6 +302,8 @@ def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body
     their skeletons, into ``result``), and what is wrong with it (beyond TRUNK_LENGTH_TOLERANCE of 1/3,
     or not measurable)."""
     regions = [region for region in TORSO_REGIONS if initial.has_region(region)]
+    if not regions:                     # no trunk: nothing was stretched (solve/transform.py)
+        return []
     try:
         before = sum(measure("length", initial, region) for region in regions)
         after = sum(measure("length", final, region) for region in regions)
