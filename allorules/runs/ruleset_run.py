@@ -230,18 +230,10 @@ def scale_with_ruleset(
             # once the legs are turned back, can miss by more than the step did (the donkey 385 at
             # ×2: the turn alone added 0.8 % to the abdomen's mass): the step is solved again with
             # its targets moved by that miss, kept while the worst miss shrinks.
-            # each miss in units of its tolerance over the run: mass ±1 %, a rule ±0.02 of exponent
-            # (the soft open-region terms are not judged)
-            mass_id, *rule_ids = [term.id for term in energy_terms(ruleset)]
-            allowed = {mass_id: math.log(1.0 + MASS_TOLERANCE),
-                       **{key: EXPONENT_TOLERANCE * abs(math.log(target)) for key in rule_ids}}
-
-            def worst_of(misses):
-                return max(abs(math.log(misses[key])) / allowed[key] for key in allowed)
-
+            allowed = _allowed_misses(ruleset, target)
             for _ in range(LAST_STEP_REFITS):
                 misses = _carried_misses(terms, anchors, reached * ratio, following, measure)
-                worst = worst_of(misses)
+                worst = _worst_miss(misses, allowed)
                 if worst <= LAST_STEP_MISS:
                     break
                 moved = {key: corrections[key] * misses[key] for key in corrections}
@@ -251,7 +243,7 @@ def scale_with_ruleset(
                     break
                 candidate = _settled(current, refit, ruleset.solver.posture, last, held, isometric)
                 after = _carried_misses(terms, anchors, reached * ratio, candidate, measure)
-                if worst_of(after) >= worst:
+                if _worst_miss(after, allowed) >= worst:
                     break
                 log.debug("last step solved again for its fresh misses %s", {k: round(v, 4) for k, v in misses.items()})
                 solution, following, corrections = refit, candidate, moved
@@ -295,6 +287,19 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         # the feet's shift reaches every vertex: the held parts given their shape once more
         following = following.with_vertices(held.apply(following.vertices, isometric))
     return following
+
+
+def _allowed_misses(ruleset, target: float) -> dict[str, float]:
+    """Per term of the mass and the rules (not the soft open-region terms), the tolerance of the whole
+    run as a log ratio: mass ±1 %, a rule ±0.02 of exponent at the run's ratio ``target``."""
+    mass_id, *rule_ids = [term.id for term in energy_terms(ruleset)]
+    return {mass_id: math.log(1.0 + MASS_TOLERANCE),
+            **{key: EXPONENT_TOLERANCE * abs(math.log(target)) for key in rule_ids}}
+
+
+def _worst_miss(misses: dict[str, float], allowed: dict[str, float]) -> float:
+    """The largest miss (planned over measured, :func:`_carried_misses`) in units of its tolerance."""
+    return max(abs(math.log(misses[key])) / allowed[key] for key in allowed)
 
 
 def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body, measure) -> list[str]:
