@@ -376,6 +376,30 @@ def test_real_elephant_is_refused_clearly():
     with pytest.raises(SegmentationError, match="--forward|allorules segment") as refused:
         label_quadruped(body)
     assert "\n" not in str(refused.value)
+    # Told which way it faces, as that message suggests, it is still refused: its ears (or its legs)
+    # would be taken for hind feet, a head of 0.2 % of the surface and hind limbs of half of it
+    for forward in ((0.0, 0.0, 1.0), (0.0, 0.0, -1.0)):
+        with pytest.raises(SegmentationError, match="not a four-legged animal's.*--segmentation"):
+            label_quadruped(body, forward=np.array(forward))
+
+
+def test_regions_no_quadruped_has_are_refused(generated):
+    """The proportions check: a truth passes; the same with the head handed to the hind limbs, or
+    the torso to the forelimbs, is refused with what is wrong."""
+    from allorules.segment.labeller import _check_proportions
+
+    truth = truth_body(generated["horse"])
+    area = vertex_areas(truth.vertices, truth.faces)
+    _check_proportions(truth.labels, area)
+    index = {name: number for number, name in enumerate(truth.region_names)}
+    headless = truth.labels.copy()
+    headless[np.isin(headless, [index["head"], index["neck"], index["chest"]])] = index["hindlimbs"]
+    with pytest.raises(SegmentationError, match=r"head 0\.0%, hindlimbs \d+%"):
+        _check_proportions(headless, area)
+    no_torso = truth.labels.copy()
+    no_torso[np.isin(no_torso, [index["chest"], index["abdomen"]])] = index["forelimbs"]
+    with pytest.raises(SegmentationError, match="chest and abdomen 0%"):
+        _check_proportions(no_torso, area)
 
 
 # ---------------------------------------------------------------- CLI
