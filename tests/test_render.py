@@ -18,6 +18,7 @@ from allorules.output.render import (
     region_color,
     region_colors,
     region_legend,
+    render_closeups,
     render_comparison,
     render_gallery,
     render_views,
@@ -276,6 +277,50 @@ def test_comparison_on_a_common_ground_line(tmp_path: Path) -> None:
     ink = _without_lines(_ink(_above_ground(image)))
     left, right = ink[:, :400], ink[:, 400:]
     assert abs(np.nonzero(left)[0].max() - np.nonzero(right)[0].max()) <= 2  # same lowest row
+
+
+def test_comparison_on_a_shared_ground_shows_a_floating_mesh_floating(tmp_path: Path) -> None:
+    box = _long_box()
+    lifted = box.vertices + np.array([0.0, 0.5, 0.0])   # half a box's height above the first one's floor
+    meshes = [(box.vertices, box.faces, "a"), (lifted, box.faces, "b")]
+    image = _image(render_comparison(meshes, path=tmp_path / "scene.png", normalise_size=False, size=(800, 400),
+                                     shared_ground=True))
+    ink = _without_lines(_ink(_above_ground(image)))          # without the labels under the ground line
+    left, right = ink[:, :400], ink[:, 400:]
+    left_bottom, right_bottom = np.nonzero(left)[0].max(), np.nonzero(right)[0].max()
+    box_height = _ink_box(left)[1]
+    assert right_bottom < left_bottom - 0.35 * box_height     # drawn floating, by about half its height
+    with pytest.raises(ValueError, match="normalise_size=False"):
+        render_comparison(meshes, path=tmp_path / "no.png", normalise_size=True, shared_ground=True)
+
+
+def _body_and_knob(knob_scale: float = 1.0):
+    """A big sphere with a small one far in front of it: the knob is the part a close-up frames."""
+    body = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    knob = trimesh.creation.icosphere(subdivisions=3, radius=0.15 * knob_scale)
+    knob.apply_translation([3.0, 0.0, 0.0])
+    both = trimesh.util.concatenate([body, knob])
+    focus = np.zeros(len(both.vertices), dtype=bool)
+    focus[len(body.vertices):] = True
+    return np.asarray(both.vertices), np.asarray(both.faces), focus
+
+
+def test_closeups_frame_the_part_at_the_same_size_in_every_panel(tmp_path: Path) -> None:
+    vertices, faces, focus = _body_and_knob()
+    bigger, _, _ = _body_and_knob(knob_scale=2.0)
+    frame = Frame(up=np.array([0.0, 1.0, 0.0]), forward=np.array([1.0, 0.0, 0.0]))
+    image = _image(render_closeups([(vertices, faces, "knob"), (bigger, faces, "knob x2")], focus,
+                                   path=tmp_path / "closeups.png", frame=frame, views=("side",), cell_size=(300, 240)))
+    assert image.shape[:2] == (24 + 240, 600)
+    panels = [image[24:, :300], image[24:, 300:]]
+    sizes = [_ink_box(_ink(panel)) for panel in panels]
+    for width, height in sizes:
+        assert height > 0.6 * 240                              # the small knob fills its panel
+    assert sizes[1][1] == pytest.approx(sizes[0][1], rel=0.05)  # shape, not size: both drawn alike
+    with pytest.raises(ValueError, match="same vertices"):
+        render_closeups([(vertices[:-1], faces[:1], "short")], focus, path=tmp_path / "no.png")
+    with pytest.raises(ValueError, match="no vertex"):
+        render_closeups([(vertices, faces, "knob")], np.zeros(len(vertices), bool), path=tmp_path / "no.png")
 
 
 def test_gallery_grid_with_missing_cell(tmp_path: Path) -> None:

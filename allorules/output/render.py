@@ -1,4 +1,4 @@
-"""Pictures for people: shaded PNG renders of meshes, comparisons, galleries and the spectrum plot.
+"""Pictures for people: shaded PNG renders of meshes, comparisons, close-ups, galleries and the spectrum plot.
 
 Everything runs headless on matplotlib's Agg backend. A mesh is drawn as a ``PolyCollection`` of
 its orthographically projected triangles sorted back to front (painter's algorithm) with Lambert
@@ -546,13 +546,19 @@ def render_comparison(
     title: str | None = None,
     legend: Mapping[str, Any] | None = None,
     size: tuple[int, int] | None = None,
+    shared_ground: bool = False,
 ) -> Path:
     """Meshes side by side on a common ground line (before/after pictures).
 
     ``meshes``: (vertices, faces, label) or (vertices, faces, label, vertex_colors) tuples, drawn
     left to right in one frame (the given one, else the first mesh's). ``normalise_size=True``
     draws each at the first mesh's head-to-tail length; ``False`` keeps true relative scale.
+    Each mesh stands on the ground line by its own lowest point, unless ``shared_ground`` (true
+    scale only): then every mesh keeps its height above the first mesh's lowest point, as in one
+    scene, so an output that floats or sinks is drawn floating or sunk.
     """
+    if shared_ground and normalise_size:
+        raise ValueError("shared_ground draws the meshes as in one scene: use it with normalise_size=False")
     if not meshes:
         raise ValueError("give at least one mesh to compare")
     if size is None:
@@ -574,25 +580,86 @@ def render_comparison(
     axes = _bare_axes(figure, [0.0, bottom + label_space, 1.0, 1 - top - bottom - label_space])
     cursor = 0.0
     placed = []
+    scene_ground = shots[0][0].bounds[2]
     for (shot, scale), item in zip(shots, meshes):
         xmin, xmax, ymin, _ = shot.bounds
-        moved = shot.transformed(scale, (cursor - xmin * scale, -ymin * scale))  # ground at y = 0
+        ground = scene_ground if shared_ground else ymin
+        moved = shot.transformed(scale, (cursor - xmin * scale, -ground * scale))  # ground at y = 0
         _draw_shot(axes, moved)
         placed.append((moved, str(item[2])))
         cursor += (xmax - xmin) * scale + gap
     xmin = min(shot.bounds[0] for shot, _ in placed)
     xmax = max(shot.bounds[1] for shot, _ in placed)
+    ymin = min(0.0, min(shot.bounds[2] for shot, _ in placed))
     ymax = max(shot.bounds[3] for shot, _ in placed)
-    _fit_limits(axes, (xmin, xmax, 0.0, ymax), margin=0.04)
+    _fit_limits(axes, (xmin, xmax, ymin, ymax), margin=0.04)
     if view in ("side", "front"):
         axes.axhline(0.0, color="0.55", linewidth=0.8, zorder=1)
     for shot, label in placed:
         centre = (shot.bounds[0] + shot.bounds[1]) / 2
         axes.annotate(
-            label, xy=(centre, 0.0), xytext=(0, -6), textcoords="offset points",
+            label, xy=(centre, min(0.0, shot.bounds[2])), xytext=(0, -6), textcoords="offset points",
             ha="center", va="top", fontsize=10, color="0.15", annotation_clip=False,
         )
     _draw_title_and_legend(figure, title, legend, top, bottom)
+    return _save_png(figure, path)
+
+
+def render_closeups(
+    meshes: Sequence[tuple],
+    focus: Any,
+    *,
+    path: str | Path,
+    frame: Frame | None = None,
+    views: Sequence[str] = ("side", "three-quarter"),
+    title: str | None = None,
+    cell_size: tuple[int, int] = (320, 240),
+) -> Path:
+    """Close-ups of one part (a head, a tail) of meshes that share their vertices (an input and its
+    outputs): one column per mesh, one row per view.
+
+    ``meshes``: (vertices, faces, label) tuples as in :func:`render_comparison`; ``focus``: a
+    boolean mask over the vertices, the part to look at. The whole mesh is drawn (no cut edges),
+    framed on the part, and every panel frames its own part, so each part fills its panel at the
+    same size: what changed is its shape, not its size (which the true-scale comparison shows).
+    """
+    if not meshes:
+        raise ValueError("give at least one mesh")
+    views = tuple(views)
+    for view in views:
+        if view not in VIEWS:
+            raise ValueError(f"unknown view {view!r}; choose from {', '.join(VIEWS)}")
+    focus = np.asarray(focus, dtype=bool)
+    if not focus.any():
+        raise ValueError("the close-up's part has no vertex")
+    for item in meshes:
+        if len(item[0]) != len(focus):
+            raise ValueError(f"mesh {item[2]!r} has {len(item[0])} vertices, the part's mask {len(focus)}: "
+                             "close-ups compare meshes with the same vertices")
+    label_height, title_height = 24, 30 if title else 0
+    width = cell_size[0] * len(meshes)
+    height = title_height + label_height + cell_size[1] * len(views)
+    figure = _figure((width, height))
+    up, forward, lateral = resolve_frame(meshes[0][0], frame)
+    grid_top = 1 - (title_height + label_height) / height
+    cell_width, cell_height = 1 / len(meshes), cell_size[1] / height
+    for column, item in enumerate(meshes):
+        vertices, faces = item[0], item[1]
+        colors = item[3] if len(item) > 3 else None
+        normals, orientation = shading_normals(vertices, faces), outward_orientation(vertices, faces)
+        figure.text((column + 0.5) * cell_width, grid_top + label_height / 2 / height, str(item[2]),
+                    ha="center", va="center", fontsize=10, color="0.15")
+        for row, view in enumerate(views):
+            camera = camera_for(view, up, forward, lateral)
+            shot = make_shot(vertices, faces, camera, vertex_colors=colors, normals=normals, orientation=orientation)
+            part = shot.xy[focus]
+            axes = _bare_axes(figure, [column * cell_width, grid_top - (row + 1) * cell_height, cell_width, cell_height])
+            _draw_shot(axes, shot)
+            _fit_limits(axes, (part[:, 0].min(), part[:, 0].max(), part[:, 1].min(), part[:, 1].max()), margin=0.12)
+            if column == 0 and len(views) > 1:
+                axes.text(0.02, 0.02, view, transform=axes.transAxes, fontsize=8, color="0.45", ha="left", va="bottom")
+    if title:
+        figure.text(0.5, 1 - title_height / 2 / height, title, ha="center", va="center", fontsize=12, color="0.15")
     return _save_png(figure, path)
 
 

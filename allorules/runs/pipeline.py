@@ -479,12 +479,13 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
 
 
 def save_picture(run: Run, path: str | Path, *, output_name: str = "output") -> Path:
-    """The input and the output side by side, at true relative size."""
+    """The input and the output side by side, at true relative size, as they stand in one scene (an
+    output that floats or sinks is drawn so)."""
     from allorules.output.render import render_comparison
 
     body = run.body
     return render_comparison([(body.vertices, body.faces, "input"), (run.result.body.vertices, body.faces, output_name)],
-                             path=path, normalise_size=False, frame=body.frame)
+                             path=path, normalise_size=False, frame=body.frame, shared_ground=True)
 
 
 # ---------------------------------------------------------------------------------------------
