@@ -53,14 +53,6 @@ def _smoothstep(ramp: np.ndarray) -> np.ndarray:
     return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
-def _spans_a_plane(points: np.ndarray) -> bool:
-    """Whether ``points`` fix a rotation: at least three, not all on one line."""
-    if len(points) < 3:
-        return False
-    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    return bool(singular[1] > 1e-3 * singular[0])
-
-
 @dataclass(frozen=True)
 class BlendZone:
     """Vertices beyond an opening that take part of the opening's correction: ``vertices`` (body
@@ -118,27 +110,30 @@ class HeldPart:
     near_zone: BlendZone
     far_zone: BlendZone | None
 
-    def shape(self, moved: np.ndarray, scale: float) -> np.ndarray:
+    def shape(self, moved: np.ndarray, scale: float, body_rotation: np.ndarray | None = None) -> np.ndarray:
         """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
         is, its near opening's centre where ``moved`` has it.
 
-        Q is the rotation that best maps the reference onto ``moved`` (Kabsch/Umeyama): over the
-        whole part when it carries something (the neck: the head goes where Eq. 9 put it), over its
-        near opening alone for an appendage (a tail keeps the set it had on the body: Eq. 9 bends
-        a thin tail, and turning the whole tail after it swung a giraffe's tail out by about 40°
-        at ×0.5 and dented the rump where the opening had to follow)."""
-        if len(self.far) or not _spans_a_plane(self.reference[self.near]):
+        Q is the rotation that best maps the reference onto ``moved`` (Kabsch/Umeyama) over the
+        whole part when it carries something (the neck: the head goes where Eq. 9 put it). An
+        appendage (a tail, an ear, a horn: nothing beyond it) turns as the whole body did
+        (``body_rotation``, see :meth:`HeldRegions.apply`; identity when not given): scaling turns
+        no part of the animal, so it keeps the direction it had in the input. (Fitted over the
+        whole tail, which Eq. 9 bends, Q swung a giraffe's tail out by about 40° at ×0.5; fitted
+        over its near opening alone, a small ring that Eq. 9 distorts, it turned the camel's
+        hanging tail up into its rump at ×2.)"""
+        if len(self.far):
             _, rotation, _ = similarity_fit(self.reference, moved, self.weights)
         else:
-            _, rotation, _ = similarity_fit(self.reference[self.near], moved[self.near])
+            rotation = np.eye(3) if body_rotation is None else body_rotation
         shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
-    def apply(self, vertices: np.ndarray, scale: float) -> None:
+    def apply(self, vertices: np.ndarray, scale: float, body_rotation: np.ndarray | None = None) -> None:
         """Give the part (in ``vertices``, in place) its reference shape × ``scale``; move its
         children with its far opening and spread the openings' mismatch over the zones."""
         moved = vertices[self.members]
-        shape = self.shape(moved, scale)
+        shape = self.shape(moved, scale, body_rotation)
         self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
         if len(self.far):
             shift = shape[self.far].mean(axis=0) - moved[self.far].mean(axis=0)
@@ -154,6 +149,11 @@ class HeldRegions:
 
     parts: tuple[HeldPart, ...]
     notes: tuple[str, ...] = ()
+    # how the body turned: the vertices of no held part, their positions on the run's input and
+    # their area shares
+    rest: np.ndarray | None = None
+    reference: np.ndarray | None = None
+    weights: np.ndarray | None = None
 
     @property
     def regions(self) -> tuple[str, ...]:
@@ -165,8 +165,11 @@ class HeldRegions:
         if not self.parts:
             return vertices
         result = np.array(vertices, dtype=float, copy=True)
+        body_rotation = None
+        if self.rest is not None and len(self.rest) >= 3:
+            _, body_rotation, _ = similarity_fit(self.reference, result[self.rest], self.weights)
         for part in self.parts:
-            part.apply(result, scale)
+            part.apply(result, scale, body_rotation)
         return result
 
 
@@ -245,4 +248,5 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
                 BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None))
     # parts that carry others (the neck carries the head and its ears) first
     ordered = tuple(sorted(found, key=lambda part: -len(part.children)))
-    return HeldRegions(ordered, tuple(notes))
+    rest = np.setdiff1d(np.arange(count), np.concatenate([part.members for part in ordered] or [np.zeros(0, int)]))
+    return HeldRegions(ordered, tuple(notes), rest, body.vertices[rest].copy(), areas[rest] / max(areas[rest].sum(), 1e-300))
