@@ -329,7 +329,12 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         log.warning("%s", tried[-1])
     log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with them "
                 "held by soft terms", missed)
-    soft = replace(scaling.ruleset, open_regions=replace(opened, hold="soft"))
+    # every appendage the body has is named, so that the soft run holds it too (and is judged on it):
+    # left to hold: soft's default it would fold into its neighbour and follow that region's rules
+    # (the camel's tail, folded into the abdomen at ×2, vanished into the rump)
+    appendages = {name: "isometric" for name in body.region_names
+                  if name in NEIGHBOUR_REGION and opened.setting(name) == "isometric"}
+    soft = replace(scaling.ruleset, open_regions=replace(opened, hold="soft", regions={**appendages, **opened.regions}))
     again = run(soft, fold_regions(body, wanted_regions(soft)))
     strayed = [outcome for outcome in again.open_regions if not outcome.met]
     if not again.converged or strayed:
