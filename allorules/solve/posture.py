@@ -197,8 +197,10 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
     Bodies without limbs come back unchanged.
     """
-    vertices = moved.vertices.copy()
+    moves = []
     for before, after in _limb_pairs(reference, moved):
+        index = after.mesh.vertex_index
+        moves.append((index, np.zeros((len(index), 3))))
         if not before.sections:
             continue
         rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
@@ -210,10 +212,23 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
         if blend_level <= lowest:
             continue
         weight = _smoothstep((before.field - lowest) / (blend_level - lowest))
-        index = after.mesh.vertex_index
-        turned = after.junction + (vertices[index] - after.junction) @ rotation.T
-        vertices[index] += weight[:, None] * (turned - vertices[index])
-    return vertices
+        turned = after.junction + (moved.vertices[index] - after.junction) @ rotation.T
+        moves[-1] = (index, weight[:, None] * (turned - moved.vertices[index]))
+    return moved.vertices + _mean_over_limbs(len(moved.vertices), moves)
+
+
+def _mean_over_limbs(count: int, moves: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Per-vertex displacements, each limb part's ``(vertex ids, moves)``, averaged where parts share
+    vertices: the seam where the two legs of a pair meet (one piece of a region split at its two
+    feet) belongs to both, and moved by each in turn it was moved twice (the camel's forelegs touch
+    at the knees: at ×2, 6 faces flipped there, 4 with the mean)."""
+    total, parts = np.zeros((count, 3)), np.zeros(count)
+    for index, move in moves:
+        np.add.at(total, index, move)
+        np.add.at(parts, index, 1.0)
+    shared = parts > 1
+    total[shared] /= parts[shared, None]
+    return total
 
 
 def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
@@ -233,8 +248,9 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
     (tried: faces flipped there; docs/biology-scaling.md, posture).
     Bodies without limbs come back unchanged.
     """
-    vertices = moved.vertices.copy()
+    moves = []
     for before, after in _limb_pairs(reference, moved):
+        moves.append((after.mesh.vertex_index, np.zeros((len(after.mesh.vertex_index), 3))))
         if len(before.sections) < 2:
             continue
         # the centroids from the second section on, relative to the first: the last is the chord
@@ -253,7 +269,7 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         direction = chord_now / reach_now
         shift -= np.outer(shift @ direction, direction)                 # across the leg only
         shifts = np.vstack([np.zeros(3), shift])                        # d_0 = 0 (and d_last = 0)
-        index = after.mesh.vertex_index
-        for axis in range(3):   # interpolated along the field; 0 above the first and below the last section
-            vertices[index, axis] += np.interp(after.field, before.levels, shifts[:, axis], left=0.0, right=0.0)
-    return vertices
+        # interpolated along the field; 0 above the first and below the last section
+        moves[-1] = (moves[-1][0], np.column_stack([np.interp(after.field, before.levels, shifts[:, axis], left=0.0,
+                                                              right=0.0) for axis in range(3)]))
+    return moved.vertices + _mean_over_limbs(len(moved.vertices), moves)
