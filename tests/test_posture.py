@@ -178,3 +178,20 @@ def test_foot_contact_weights_survive_a_zero_length_edge_and_a_stray_piece():
     assert np.all(np.isfinite(weights))
     np.testing.assert_allclose(weights[:, :5].sum(axis=0), 1.0, atol=1e-9)
     np.testing.assert_allclose(weights[:, 5:], 0.0, atol=1e-12)
+
+
+def test_real_camel_at_x2_keeps_its_tail_and_says_where_its_touching_knees_fold(shared_meshes):
+    """The camel's forelegs touch at the knees, so the two legs share vertices there: moved by each
+    leg in turn they folded (6 faces); moved by the mean of both, 4 remain, and the run says where.
+    Its hanging tail, held by its shape, keeps its length and mass exponents (once turned up into
+    the rump by a rotation fitted on its opening)."""
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+
+    run = pipeline.run(shared_meshes / "camel.obj", pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0))
+    result = run.result
+    assert result.converged, result.messages
+    assert 0 < result.flipped_faces <= 4
+    assert any("turned inside out" in warning and "forelimbs" in warning for warning in result.warnings)
+    tail = {outcome.measure: outcome for outcome in result.open_regions if outcome.region == "tail"}
+    assert tail["length"].hold == "shape" and tail["length"].met and tail["mass"].met

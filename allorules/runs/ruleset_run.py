@@ -46,7 +46,7 @@ import numpy as np
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
 from allorules.measure.parts import TORSO_REGIONS
-from allorules.measure.quality import distortions
+from allorules.measure.quality import distortions, flipped_faces
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.specs import ConstraintContext
@@ -401,7 +401,13 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
         raise ScalingError("the scaled mesh has non-finite vertices; nothing was written")
     ratio = result.target_mass_ratio
-    result.flipped_faces = count_flipped_faces(initial.vertices, final.vertices, initial.faces)
+    flipped = flipped_faces(initial, final.vertices)
+    result.flipped_faces = flipped.count
+    if flipped.count:       # not a verdict (a sliver at two legs that touch), but never unsaid
+        where = ", ".join(f"{count} in the {region}" for region, count in flipped.regions.items())
+        result.warnings.append(f"{flipped.count} face{'s' * (flipped.count > 1)} turned inside out ({where}): "
+                               "Eq. 9 folded the surface there; look at the output there before using it")
+        log.warning("%s", result.warnings[-1])
     _report_posture(result, initial, final)
     mass_term = energy_terms(ruleset)[0]
     result.mass_ratio = measure(mass_term.measure, final, mass_term.region) / measure(mass_term.measure, initial, mass_term.region)
