@@ -30,7 +30,7 @@ vertices, is not held so (a note says so; the soft terms then hold it).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -98,6 +98,9 @@ class HeldPart:
     kept); ``weights``: their area shares (for the fit); ``near`` / ``far``: indices into
     ``members`` of the opening towards the torso and of the opening beyond (empty for an appendage
     such as a tail); ``children``: body vertices beyond the far opening, moved rigidly by τ;
+    ``parent``: for an appendage, the body vertices of the region it grows from (the head under an
+    ear, the abdomen under a tail), whose turn it follows, and ``parent_reference`` /
+    ``parent_weights`` their input positions and area shares;
     ``near_zone`` / ``far_zone``: where the openings' mismatch is spread."""
 
     region: str
@@ -109,31 +112,41 @@ class HeldPart:
     children: np.ndarray
     near_zone: BlendZone
     far_zone: BlendZone | None
+    parent: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    parent_reference: np.ndarray | None = None
+    parent_weights: np.ndarray | None = None
 
-    def shape(self, moved: np.ndarray, scale: float, body_rotation: np.ndarray | None = None) -> np.ndarray:
+    def parent_turn(self, vertices: np.ndarray) -> np.ndarray | None:
+        """How the region this appendage grows from turned (``vertices``: the whole body now)."""
+        if len(self.parent) < 3:
+            return None
+        _, rotation, _ = similarity_fit(self.parent_reference, vertices[self.parent], self.parent_weights)
+        return rotation
+
+    def shape(self, moved: np.ndarray, scale: float, parent_turn: np.ndarray | None = None) -> np.ndarray:
         """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
         is, its near opening's centre where ``moved`` has it.
 
         Q is the rotation that best maps the reference onto ``moved`` (Kabsch/Umeyama) over the
         whole part when it carries something (the neck: the head goes where Eq. 9 put it). An
-        appendage (a tail, an ear, a horn: nothing beyond it) turns as the whole body did
-        (``body_rotation``, see :meth:`HeldRegions.apply`; identity when not given): scaling turns
-        no part of the animal, so it keeps the direction it had in the input. (Fitted over the
-        whole tail, which Eq. 9 bends, Q swung a giraffe's tail out by about 40° at ×0.5; fitted
-        over its near opening alone, a small ring that Eq. 9 distorts, it turned the camel's
-        hanging tail up into its rump at ×2.)"""
+        appendage (a tail, an ear, a horn: nothing beyond it) turns as the region it grows from
+        turned (``parent_turn``, :meth:`parent_turn`; identity when not given): it keeps its set
+        on the head or the rump. (Fitted over the whole tail, which Eq. 9 bends, Q swung a
+        giraffe's tail out by about 40° at ×0.5; fitted over its near opening alone, a small ring
+        that Eq. 9 distorts, it turned the camel's hanging tail up into its rump at ×2; taken as the
+        whole body's turn, the cow's ears did not follow its head and a spike stood by its eye.)"""
         if len(self.far):
             _, rotation, _ = similarity_fit(self.reference, moved, self.weights)
         else:
-            rotation = np.eye(3) if body_rotation is None else body_rotation
+            rotation = np.eye(3) if parent_turn is None else parent_turn
         shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
-    def apply(self, vertices: np.ndarray, scale: float, body_rotation: np.ndarray | None = None) -> None:
+    def apply(self, vertices: np.ndarray, scale: float) -> None:
         """Give the part (in ``vertices``, in place) its reference shape × ``scale``; move its
         children with its far opening and spread the openings' mismatch over the zones."""
         moved = vertices[self.members]
-        shape = self.shape(moved, scale, body_rotation)
+        shape = self.shape(moved, scale, self.parent_turn(vertices))
         self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
         if len(self.far):
             shift = shape[self.far].mean(axis=0) - moved[self.far].mean(axis=0)
@@ -149,11 +162,6 @@ class HeldRegions:
 
     parts: tuple[HeldPart, ...]
     notes: tuple[str, ...] = ()
-    # how the body turned: the vertices of no held part, their positions on the run's input and
-    # their area shares
-    rest: np.ndarray | None = None
-    reference: np.ndarray | None = None
-    weights: np.ndarray | None = None
 
     @property
     def regions(self) -> tuple[str, ...]:
@@ -165,11 +173,8 @@ class HeldRegions:
         if not self.parts:
             return vertices
         result = np.array(vertices, dtype=float, copy=True)
-        body_rotation = None
-        if self.rest is not None and len(self.rest) >= 3:
-            _, body_rotation, _ = similarity_fit(self.reference, result[self.rest], self.weights)
         for part in self.parts:
-            part.apply(result, scale, body_rotation)
+            part.apply(result, scale)
         return result
 
 
@@ -241,12 +246,20 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
                 continue
             child_side = (side_of >= 0) & (side_of != root_side)
             reference = body.vertices[members].copy()
+            parent = np.zeros(0, dtype=np.int64)
+            if not len(far_ids):
+                # an appendage follows the region it grows from: the commonest region just outside its
+                # near opening, less what is held
+                outside = touching.col[(neighbour_side == root_side) & (body.labels[touching.col] >= 0)]
+                if len(outside):
+                    grows_from = np.bincount(body.labels[outside]).argmax()
+                    parent = np.setdiff1d(np.flatnonzero(body.labels == grows_from), members)
             found.append(HeldPart(
                 region, members, reference, areas[members] / areas[members].sum(),
                 np.searchsorted(members, near_ids), np.searchsorted(members, far_ids), np.flatnonzero(child_side),
                 BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices),
-                BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None))
+                BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None,
+                parent, body.vertices[parent].copy(), areas[parent] / max(areas[parent].sum(), 1e-300)))
     # parts that carry others (the neck carries the head and its ears) first
     ordered = tuple(sorted(found, key=lambda part: -len(part.children)))
-    rest = np.setdiff1d(np.arange(count), np.concatenate([part.members for part in ordered] or [np.zeros(0, int)]))
-    return HeldRegions(ordered, tuple(notes), rest, body.vertices[rest].copy(), areas[rest] / max(areas[rest].sum(), 1e-300))
+    return HeldRegions(ordered, tuple(notes))
