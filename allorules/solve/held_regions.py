@@ -30,7 +30,7 @@ vertices, is not held so (a note says so; the soft terms then hold it).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -83,6 +83,11 @@ class BlendZone:
         lookup[opening] = np.arange(len(opening))
         vertices = index[inside]
         return cls(vertices, lookup[index[nearest[inside]]], 1.0 - _smoothstep(distance[inside] / width))
+
+    def without(self, kept: np.ndarray) -> "BlendZone":
+        """The zone less the body vertices ``kept`` (another held part's, which must stay exact)."""
+        stay = ~np.isin(self.vertices, kept)
+        return BlendZone(self.vertices[stay], self.source[stay], self.weight[stay])
 
     def apply(self, vertices: np.ndarray, correction: np.ndarray) -> None:
         """Move the zone (in place) by its share of each opening vertex's ``correction``."""
@@ -199,6 +204,21 @@ def _sides(adjacency, inside: np.ndarray, root: np.ndarray, areas: np.ndarray) -
     return side_of, root_side, outside & small[np.maximum(side_of, 0)]
 
 
+def _vertex_connected(pieces: list[np.ndarray], faces: np.ndarray) -> list[np.ndarray]:
+    """Edge-connected face pieces merged where they share a vertex: two parts held one after the
+    other must not share a vertex, or the second moves the first (the wolf's tail had two pieces
+    of 8 vertices, each touching the tail at one vertex)."""
+    merged: list[tuple[set, np.ndarray]] = []
+    for piece in pieces:
+        corners, faces_of = set(np.unique(faces[piece]).tolist()), piece
+        for other in [entry for entry in merged if entry[0] & corners]:
+            merged.remove(other)
+            corners |= other[0]
+            faces_of = np.concatenate([other[1], faces_of])
+        merged.append((corners, faces_of))
+    return [np.sort(faces_of) for _, faces_of in merged]
+
+
 def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
     """The :class:`HeldRegions` of ``regions`` on ``body`` (the run's input, labelled).
 
@@ -224,7 +244,7 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
         # the region's faces as the measures take them (most of their corners in it), so that what
         # is held is what its length and mass are measured on
         region_faces = body.faces[body.region_face_mask(region)]
-        for piece in face_parts(region_faces):
+        for piece in _vertex_connected(face_parts(region_faces), region_faces):
             faces = region_faces[piece]
             inside = np.zeros(count, dtype=bool)
             inside[np.unique(faces)] = True
@@ -261,5 +281,11 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
                 BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None,
                 parent, body.vertices[parent].copy(), areas[parent] / max(areas[parent].sum(), 1e-300)))
     # parts that carry others (the neck carries the head and its ears) first
+    # a zone spreads its opening's mismatch over the body beside it, never over another held part
+    # (applied after it, the horns' zone moved the cow's ears next to them: ears length 0.258 at ×0.5)
+    found = [replace(part, near_zone=part.near_zone.without(others),
+                     far_zone=None if part.far_zone is None else part.far_zone.without(others))
+             for part in found
+             for others in [np.concatenate([other.members for other in found if other is not part] or [np.zeros(0, int)])]]
     ordered = tuple(sorted(found, key=lambda part: -len(part.children)))
     return HeldRegions(ordered, tuple(notes))
