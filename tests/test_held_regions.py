@@ -253,9 +253,9 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     assert pipeline.scale(body, scaling, registry=pipeline.registry_for(None)).converged and calls == [1]
 
 
-def test_every_held_part_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):
-    """A zone spreads its opening's mismatch over the body beside it, never over another held part,
-    and parts that share a vertex are one part: the wolf's ears and neck touch one another's zones
+def test_every_held_appendage_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):
+    """A zone spreads its opening's mismatch over the body beside it, never over an appendage held
+    before it, and parts that share a vertex are one part: the wolf's ears and neck touch one another's zones
     and its tail had two pieces of 8 vertices touching it at a vertex, so a part applied later moved
     one applied before (the cow 381's ears shrank to length exponent 0.258 at ×0.5 so)."""
     from allorules.measure.features import similarity_fit
@@ -270,14 +270,15 @@ def test_every_held_part_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):
                                   regions=pipeline.wanted_regions(ruleset))
     held = hold_regions(body, shape_held_regions(ruleset, body))
     assert {"neck", "tail", "ears"} <= set(held.regions)
-    for part in held.parts:
-        others = np.concatenate([other.members for other in held.parts if other is not part])
+    for index, part in enumerate(held.parts):
+        before = np.concatenate([other.members for other in held.parts[:index] if other.region != "neck"]
+                                or [np.zeros(0, int)])
         for zone in (part.near_zone, part.far_zone):
-            assert zone is None or not np.isin(zone.vertices, others).any()
+            assert zone is None or not np.isin(zone.vertices, before).any()
     extent = np.ptp(body.vertices, axis=0).max()
     warp = 0.03 * extent * np.sin(body.vertices / extent * np.array([5.0, 7.0, 3.0]))[:, [1, 2, 0]]
     result = held.apply(body.vertices + warp, 0.9)
-    for part in held.parts:
+    for part in [part for part in held.parts if part.region != "neck"]:     # the appendages
         scale, _, offset = similarity_fit(part.reference, result[part.members])
         _, rotation, _ = similarity_fit(part.reference, result[part.members])
         fitted = scale * part.reference @ rotation.T + offset
