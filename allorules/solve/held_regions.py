@@ -12,18 +12,19 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
 * each connected part P of the region (its faces as the measures take them: most corners in it)
   is given its *input* shape scaled by the isometric factor k = R_reached^(1/3) and turned and
   placed where Eq. 9 put it: S(x) = k Q x + t, Q the rotation that best maps the input part onto
-  Eq. 9's part (Kabsch, area-weighted; for an appendage, which carries nothing, its near opening
-  onto Eq. 9's: it keeps its set on the body), t such that the centre of the opening towards the
-  torso (the *near* opening) stays where Eq. 9 put it;
+  Eq. 9's part (Kabsch, area-weighted; for an appendage, which carries nothing, the turn of the
+  region it grows from: it keeps its set on the head or the rump), t such that the centre of the
+  opening towards the torso (the *near* opening) stays where Eq. 9 put it;
 * what hangs beyond the part (the head beyond the neck, with its ears and horns: the *children*)
   is moved rigidly by τ, the shift that takes Eq. 9's far opening onto S's;
 * the small mismatch left at each opening (Eq. 9 made the chest and the head other than
   isometric; a step's worth, since each step starts from the part as the previous one held it)
   is spread over a *zone* of the neighbouring side, one opening radius wide along the surface:
   a zone vertex z moves by w(z)·(S − E)(o_z), o_z its nearest opening vertex, w falling smoothly
-  from 1 at the opening to 0 (smoothstep). The part itself is exactly S, so its length and mass
-  are isometric to the measures' precision; the zones lie in ruled regions, whose measures the
-  solver meets on this very mesh.
+  from 1 at the opening to 0 (smoothstep). A zone never reaches an appendage held before it
+  (it may blend the edge of the neck). An appendage is then exactly S, so its length and mass are
+  isometric to the measures' precision (the neck to within what its edge shares with the zones);
+  the zones lie in ruled regions, whose measures the solver meets on this very mesh.
 
 A part that does not touch the torso's side of the body, or has fewer than ``MIN_VERTICES``
 vertices, is not held so (a note says so; the soft terms then hold it).
