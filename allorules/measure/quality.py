@@ -70,11 +70,9 @@ class FlippedFaces:
 
 def flipped_faces(before: Body, after: np.ndarray) -> FlippedFaces:
     """Faces of ``before`` whose normal points more than 90° away on ``after`` (same faces)."""
-    from allorules.mesh.geometry import face_normals
+    from allorules.mesh.geometry import flipped_face_mask
 
-    normals_before = face_normals(before.vertices, before.faces)
-    normals_after = face_normals(np.asarray(after, dtype=float), before.faces)
-    flipped = np.einsum("ij,ij->i", normals_before, normals_after) <= 0   # as global_scaling.count_flipped_faces
+    flipped = flipped_face_mask(before.vertices, np.asarray(after, dtype=float), before.faces)
     regions = _region_of_faces(before, before.faces[flipped])
     counts: dict[str, int] = {}
     if regions is not None:

@@ -50,11 +50,15 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
 
 
-def count_flipped_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
+def flipped_face_mask(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces whose normal turned by more than 90° (n_before · n_after ≤ 0 on a non-degenerate face)."""
     normal_before, normal_after = face_normals(before, faces), face_normals(after, faces)
-    dot = np.einsum("ij,ij->i", normal_before, normal_after)
-    return int(np.sum(dot <= 0))
+    return np.einsum("ij,ij->i", normal_before, normal_after) <= 0
+
+
+def count_flipped_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
+    """How many faces :func:`flipped_face_mask` finds."""
+    return int(np.sum(flipped_face_mask(before, after, faces)))
 
 
 def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -39,7 +39,11 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from allorules.body import Body
 from allorules.measure.features import similarity_fit
 from allorules.mesh.geometry import vertex_areas
-from allorules.mesh.topology import face_parts, vertex_adjacency, vertex_graph
+from allorules.mesh.topology import (
+    vertex_adjacency,
+    vertex_components,
+    vertex_graph,
+)
 from allorules.segment.regions import NEIGHBOUR_REGION
 
 ZONE = 1.0              # width of a blend zone beyond an opening, in opening radii (along the surface)
@@ -206,19 +210,12 @@ def _sides(adjacency, inside: np.ndarray, root: np.ndarray, areas: np.ndarray) -
     return side_of, root_side, outside & small[np.maximum(side_of, 0)]
 
 
-def _vertex_connected(pieces: list[np.ndarray], faces: np.ndarray) -> list[np.ndarray]:
-    """Edge-connected face pieces merged where they share a vertex: two parts held one after the
-    other must not share a vertex, or the second moves the first (the wolf's tail had two pieces
-    of 8 vertices, each touching the tail at one vertex)."""
-    merged: list[tuple[set, np.ndarray]] = []
-    for piece in pieces:
-        corners, faces_of = set(np.unique(faces[piece]).tolist()), piece
-        for other in [entry for entry in merged if entry[0] & corners]:
-            merged.remove(other)
-            corners |= other[0]
-            faces_of = np.concatenate([other[1], faces_of])
-        merged.append((corners, faces_of))
-    return [np.sort(faces_of) for _, faces_of in merged]
+def _pieces(faces: np.ndarray, count: int) -> list[np.ndarray]:
+    """The region's faces (``faces``, body vertex ids) in pieces that share no vertex, largest first:
+    two parts held one after the other must not share a vertex, or the second moves the first (the
+    wolf's tail had two pieces of 8 vertices, each touching the tail at one vertex)."""
+    component = vertex_components(vertex_adjacency(faces, count), np.isin(np.arange(count), faces))[faces[:, 0]]
+    return sorted((np.flatnonzero(component == k) for k in np.unique(component)), key=len, reverse=True)
 
 
 def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
@@ -246,7 +243,7 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
         # the region's faces as the measures take them (most of their corners in it), so that what
         # is held is what its length and mass are measured on
         region_faces = body.faces[body.region_face_mask(region)]
-        for piece in _vertex_connected(face_parts(region_faces), region_faces):
+        for piece in _pieces(region_faces, count):
             faces = region_faces[piece]
             inside = np.zeros(count, dtype=bool)
             inside[np.unique(faces)] = True
@@ -288,10 +285,11 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
     # length 0.258 at ×0.5). It may reach the edge of a neck held before it (the wolf's ears sit at
     # its neck: kept out of their zones, the seam creased and 6 faces flipped at ×2), and a part held
     # after it takes the zone's share before it is given its shape where it then sits.
-    ordered = sorted(found, key=lambda part: -len(part.children))
-    ordered = [replace(part, near_zone=part.near_zone.without(before),
-                       far_zone=None if part.far_zone is None else part.far_zone.without(before))
-               for index, part in enumerate(ordered)
-               for before in [np.concatenate([other.members for other in ordered[:index]
-                                              if other.region in NEIGHBOUR_REGION] or [np.zeros(0, int)])]]
+    ordered: list[HeldPart] = []
+    held_before = np.zeros(0, dtype=np.int64)          # the appendages held so far
+    for part in sorted(found, key=lambda part: -len(part.children)):
+        ordered.append(replace(part, near_zone=part.near_zone.without(held_before),
+                               far_zone=None if part.far_zone is None else part.far_zone.without(held_before)))
+        if part.region in NEIGHBOUR_REGION:
+            held_before = np.concatenate([held_before, part.members])
     return HeldRegions(tuple(ordered), tuple(notes))
