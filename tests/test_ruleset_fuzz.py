@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from allorules.errors import RulesetError
@@ -112,6 +112,7 @@ def test_near_valid_documents_never_end_in_a_traceback(folder, document):
 
 @FUZZ
 @given(values)
+@example(document="._")     # matched the float pattern's ".[0-9_]+" and crashed float("."): found by this test
 def test_arbitrary_yaml_values_never_end_in_a_traceback(folder, document):
     assert_loads_or_reports(folder, yaml.safe_dump(document, allow_unicode=True))
 
