@@ -396,3 +396,18 @@ def test_a_lost_scheduler_stops_the_run_with_its_summary(own_cluster, animals, t
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] and summary["counts"]["done"] >= 1 and summary["counts"]["not run"] >= 1
     assert summary["counts"]["failed"] == 0        # a lost scheduler is not the jobs' failure
+
+
+def test_a_result_lost_as_the_connection_closes_is_the_schedulers_loss_not_the_jobs():
+    """A job in flight when the scheduler dies may end cancelled or with its result lost in transit
+    (CommClosedError): both stop the run as a lost scheduler; the job's own error stays its failure."""
+    from types import SimpleNamespace
+
+    from distributed.comm.core import CommClosedError
+
+    lost = cluster_module._lost_with_the_scheduler
+    running = SimpleNamespace(status="running")
+    assert lost(running, SimpleNamespace(status="error"), CommClosedError("in: Stream is closed"))
+    assert lost(running, SimpleNamespace(status="cancelled"), RuntimeError("cancelled"))
+    assert lost(SimpleNamespace(status="closed"), SimpleNamespace(status="error"), RuntimeError("gone"))
+    assert not lost(running, SimpleNamespace(status="error"), MemoryError("the job's own"))

@@ -448,6 +448,16 @@ def _failure(job: Job, error: BaseException) -> str:
     return f"{type(error).__name__}: {text}".rstrip(": ")
 
 
+def _lost_with_the_scheduler(client, future, error: BaseException) -> bool:
+    """Whether a future's error is the scheduler's loss, not the job's: cancelled by no one of ours
+    (the scheduler went away or restarted), or its result lost in transit as the connection closed
+    (a job in flight when the scheduler dies may end either way)."""
+    from distributed.comm.core import CommClosedError
+
+    return (future.status == "cancelled" or isinstance(error, CommClosedError)
+            or client.status not in ("running", "connecting"))
+
+
 class _ClusterWatch:
     """The cluster as the client sees it: its workers and how many of our jobs run on them."""
 
@@ -533,7 +543,7 @@ def run_on_cluster(client, pending: Sequence[Job], output: Path, fingerprints: d
                 try:
                     outcome = future.result()
                 except Exception as error:   # the task never returned a report: record why
-                    if future.status == "cancelled":   # not by us: the scheduler went away or restarted
+                    if _lost_with_the_scheduler(client, future, error):   # not the job's failure
                         raise ClusterError("lost the connection to the Dask scheduler (or it restarted); run the "
                                            "batch again to resume") from None
                     report = record_failure(job, output, fingerprints[job.id], _failure(job, error))
