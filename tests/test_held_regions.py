@@ -136,11 +136,19 @@ def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_r
     for region in ("neck", "tail"):
         assert outcomes[(region, "length")].hold == "shape"
         assert abs(outcomes[(region, "length")].achieved_exponent - 1 / 3) <= 0.02
-        assert abs(outcomes[(region, "mass")].achieved_exponent - 1.0) <= 0.02
-    held = hold_regions(body, ("neck", "tail"))
+    # the neck's end tapers over half an opening radius to the head, which its rule holds smaller
+    # than isometric (measured 0.977 at ×2, 0.974 at ×0.5 on this short neck; the real horse 0.99)
+    assert abs(outcomes[("tail", "mass")].achieved_exponent - 1.0) <= 0.02
+    assert abs(outcomes[("neck", "mass")].achieved_exponent - 1.0) <= 0.03
+    held = hold_regions(body, ("neck", "tail", "head"), {"head": 0.7})
     for part in held.parts:
         scale, residual = _similarity_residual(body.vertices[part.members], result.body.vertices[part.members])
-        assert scale == pytest.approx(ratio ** (1 / 3), rel=1e-6) and residual < 1e-6, part.region
+        if part.region == "neck":     # but for its end, in the head's zone
+            head = held.parts[[p.region for p in held.parts].index("head")]
+            end = np.isin(part.members, np.concatenate([head.near_zone.vertices, head.members]))
+            scale, residual = _similarity_residual(body.vertices[part.members[~end]], result.body.vertices[part.members[~end]])
+        expected = ratio ** (0.7 / 3) if part.region == "head" else ratio ** (1 / 3)
+        assert scale == pytest.approx(expected, rel=1e-6) and residual < 1e-6, (part.region, scale, expected, residual)
     # measured: openings' worst 1.50 / 1.83 (×2), 1.63 / 2.57 (×0.5); the body's own worst 1.91 / 3.26
     jump = _worst_stretch_jump(body.vertices, result.body.vertices, body.faces)
     openings = np.zeros(len(jump), dtype=bool)
@@ -225,7 +233,7 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
         tried = [(hold, stretch) for hold, stretch, _ in calls]
         if case == "stretch meets":
             assert tried == [("shape", "when-needed"), ("shape", "on")]
-            assert result.converged and "trunk lengthened along the body (length exponent 0.384" in result.warnings[0]
+            assert result.converged and "the trunk's length along the body as one more variable (length exponent 0.384" in result.warnings[0]
             continue
         assert tried == [("shape", "when-needed"), ("shape", "on"), ("soft", "when-needed")]
         # the soft run keeps the tail apart too (held by soft terms, and judged on it): folded into
@@ -251,6 +259,41 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
                         lambda labelled, ruleset, ratio, **options: calls.append(1) or BiologyScalingResult(
                             body=labelled, target_mass_ratio=ratio, converged=True))
     assert pipeline.scale(body, scaling, registry=pipeline.registry_for(None)).converged and calls == [1]
+
+
+def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_on(generated_horse, monkeypatch):
+    """solver.limb_thickness: when-needed makes a missed run again with κ, then with κ and δ (each
+    variable kept for the tries after it), then with soft terms; the first that meets is kept and
+    says what it took."""
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+    from allorules.runs.results import BiologyScalingResult
+    from allorules.solve.open_regions import OpenRegionOutcome
+
+    body = generated_horse.body()
+    calls = []
+
+    def fake(labelled, ruleset, ratio, **options):
+        solver = ruleset.solver
+        calls.append((ruleset.open_regions.hold, solver.limb_thickness, solver.trunk_stretch))
+        converged = (solver.limb_thickness, solver.trunk_stretch) == ("on", meets)
+        outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, 1 / 3, True, 0.02, ruleset.open_regions.hold)
+        return BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=converged,
+                                    messages=[] if converged else ["mass ratio 1.9212, target 2.0000"],
+                                    open_regions=[outcome], trunk_length_exponent=0.35)
+
+    monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
+    quadruped = load_ruleset("quadruped")
+    scaling = pipeline.RulesetScaling(replace(quadruped, solver=replace(quadruped.solver, limb_thickness="when-needed")), 2.0)
+    meets = "when-needed"                   # κ alone meets
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed")]
+    assert result.converged and "the limbs' thickness as one more variable" in result.warnings[0]
+    calls.clear()
+    meets = "on"                            # κ and δ together meet
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed"), ("shape", "on", "on")]
+    assert result.converged and "(length exponent 0.350" in result.warnings[0]
 
 
 def test_every_held_appendage_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):

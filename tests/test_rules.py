@@ -365,6 +365,7 @@ def test_solver_errors(tmp_path, registry):
         "solver: {transform: per-vertex}": "per-mode",
         "solver: {posture: standing}": "posture",
         "solver: {trunk_stretch: sometimes}": "solver.trunk_stretch 'sometimes' is not one of 'when-needed', 'on', 'off'",
+        "solver: {limb_thickness: thick}": "solver.limb_thickness 'thick' is not one of 'off', 'when-needed', 'on'",
     }
     for line, message in cases.items():
         _, problems = single_problem(tmp_path, MINIMAL + line + "\n", registry)
@@ -382,6 +383,8 @@ def test_transform_form_and_posture_are_the_methods_unless_the_ruleset_says(tmp_
     for written, meant in (("'off'", "off"), ("off", "off"), ("on", "on"), ("when-needed", "when-needed")):
         ruleset = load_ruleset(write(tmp_path, "trunk.yaml", MINIMAL + f"solver: {{trunk_stretch: {written}}}\n"), registry)
         assert ruleset.solver.trunk_stretch == meant
+        ruleset = load_ruleset(write(tmp_path, "limbs.yaml", MINIMAL + f"solver: {{limb_thickness: {written}}}\n"), registry)
+        assert ruleset.solver.limb_thickness == meant
 
 
 def test_numbers_without_a_dot_are_numbers(tmp_path, registry):

@@ -205,3 +205,52 @@ def test_step_does_not_depend_on_units_or_place(animal, registry):
     for region in a.alphas:
         assert b.alphas[region] == pytest.approx(a.alphas[region], abs=1e-5)
     np.testing.assert_allclose(b.body.vertices, 100.0 * a.body.vertices + offset, atol=1e-5 * 100 * np.ptp(body.vertices))
+
+
+def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else(animal, registry):
+    """κ (solver.limb_thickness) moves only the limbs, across their centre lines: at κ = 0.2 a leg's
+    girth at two thirds of its length grows by about 20 % of Eq. 9's while its length stays, the
+    torso and head stay put, and κ = 0 is Eq. 9 bit for bit; a thicker leg carries the same mass at
+    a lower peak stress, the lever the stress constraint needs."""
+    from allorules.measure.limbs import limb_sections
+    from allorules.measure.parts import carry_fields
+    from allorules.solve.limb_thickness import thickening_field
+
+    body, basis = animal
+    regions = load_ruleset("quadruped", registry).regions
+    plain = StepTransform.of(body, basis, regions)
+    step = StepTransform.of(body, basis, regions, limb_thickness=True)
+    assert step.variable_count == plain.variable_count + 1 and step.limb_field is not None
+    variables = np.zeros(plain.variable_count)
+    variables[:3] = 1.02, -0.01, 0.1
+    assert np.array_equal(step.vertices(np.append(variables, 0.0)), plain.vertices(variables))
+
+    field = thickening_field(body)
+    limbs = body.region_mask("forelimbs") | body.region_mask("hindlimbs")
+    assert not field[~limbs].any() and np.linalg.norm(field[limbs], axis=1).max() > 0
+    before = carry_fields(body, body.with_vertices(plain.vertices(variables)))
+    after = carry_fields(body, body.with_vertices(step.vertices(np.append(variables, 0.2))))
+    moved = np.linalg.norm(after.vertices - before.vertices, axis=1)
+    size = np.ptp(body.vertices, axis=0).max()
+    torso = body.region_mask("chest") | body.region_mask("abdomen") | body.region_mask("head")
+    assert np.median(moved[torso]) < 2e-3 * size < np.median(moved[limbs])
+    for region in ("forelimbs", "hindlimbs"):
+        for leg_before, leg_after in zip(limb_sections(before, region), limb_sections(after, region)):
+            girth = leg_after.section_at(0.66).girth / leg_before.section_at(0.66).girth
+            assert 1.14 < girth < 1.24, (region, girth)
+            assert abs(leg_after.length / leg_before.length - 1) < 0.02
+    gauge = StressGauge.choose(body)
+    assert gauge.stress(after) < 0.8 * gauge.stress(before)
+
+
+def test_a_step_with_the_limbs_thickness_meets_every_target_and_reports_it(animal, registry):
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    solution = solve_step(body, basis, ruleset, registry, 1.1, measure=_measure(registry, body),
+                          trunk_stretch=True, limb_thickness=True)
+    assert max(abs(value) for value in solution.residuals.values()) < 1e-3
+    assert len(solution.variables) == 4 + len(ruleset.regions)
+    assert solution.variables[-2] == solution.trunk_stretch and solution.variables[-1] == solution.limb_thickness
+    assert solution.as_dict()["limb_thickness"] == solution.limb_thickness
+    # a heavier animal at the same peak stress: the legs thicker than Eq. 9 alone made them
+    assert solution.limb_thickness > 0

@@ -106,6 +106,29 @@ class Limb:
         sections, length = _chain_sections(junction, loops, tip)
         return Limb(self.region, self.part, sections, junction, tip, length, self.field, self.levels, part, junction_loop)
 
+    def offsets_across(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each part vertex's offset from the limb's centre line, across the line, and how far
+        along the limb it is (0 at the junction, 1 at the tip), as ((n, 3), (n,)).
+
+        The centre line is the sections' centroids as a function of the field; a vertex's point on
+        it is interpolated at the vertex's field value (held at the first or last section beyond
+        them, the foot below the last) and the line's direction there is taken out of the offset,
+        so that scaling the offsets thickens the limb without lengthening it. A limb with fewer
+        than two sections has no line: zero offsets."""
+        count = len(self.mesh.vertices)
+        if len(self.sections) < 2:
+            return np.zeros((count, 3)), np.zeros(count)
+        levels, centroids = self.levels, self.centroids
+        fractions = np.array([section.fraction for section in self.sections])
+        on_line = np.column_stack([np.interp(self.field, levels, centroids[:, axis]) for axis in range(3)])
+        direction = np.gradient(centroids, levels, axis=0)
+        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), np.finfo(float).tiny)
+        along = np.column_stack([np.interp(self.field, levels, direction[:, axis]) for axis in range(3)])
+        along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), np.finfo(float).tiny)
+        offsets = self.mesh.vertices - on_line
+        offsets -= np.einsum("ij,ij->i", offsets, along)[:, None] * along
+        return offsets, np.interp(self.field, levels, fractions, left=0.0, right=1.0)
+
     def section_at(self, fraction: float) -> Section:
         """The cross-section at ``fraction`` of the limb's length (0 junction, 1 tip), recomputed exactly."""
         if not self.sections:

@@ -69,6 +69,8 @@ class SolverSettings:
     posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.solve.posture)
     detail_cutoff: float | None = None   # Eq. 9 on the base only, detail kept (power_laws.DetailLayer); None: every mode
     trunk_stretch: str = "when-needed"   # the trunk's length as one more variable: "on", "off", or "when-needed" (TRUNK_STRETCH)
+    limb_thickness: str = "on"           # the limbs' thickness as one more variable: "on", "off", or "when-needed" (LIMB_THICKNESS)
+    ruled_shape: str = "hold"            # a head sized by its rule keeps its shape; "reshape": Eq. 9's α (RULED_SHAPES)
 
 
 OPEN_REGION_SETTINGS = ("isometric", "free")
@@ -182,7 +184,8 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "parameter_tolerance": solver.parameter_tolerance, "max_evaluations": solver.max_evaluations,
         "scale_bounds": list(solver.scale_bounds), "alpha_bounds": list(solver.alpha_bounds),
         "transform": solver.transform, "posture": solver.posture, "detail_cutoff": solver.detail_cutoff,
-        "trunk_stretch": solver.trunk_stretch,
+        "trunk_stretch": solver.trunk_stretch, "limb_thickness": solver.limb_thickness,
+        "ruled_shape": solver.ruled_shape,
     }
     opened = ruleset.open_regions
     document["open_regions"] = {"default": opened.default, "hold": opened.hold, "weight": opened.weight, "measures": list(opened.measures),
@@ -209,6 +212,17 @@ TRANSFORM_FORMS = ("per-axis", "per-mode")
 # lengthens the trunk along the animal's forward axis; "when-needed": only in a second run, when a
 # run without it misses its targets with the open regions held by their shape (runs/pipeline.py).
 TRUNK_STRETCH = ("when-needed", "on", "off")
+
+
+# solver.limb_thickness of a ruleset (allorules/solve/limb_thickness.py): the variable κ that thickens
+# the limbs across their centre lines; "when-needed": only in a further run, as trunk_stretch.
+LIMB_THICKNESS = ("off", "when-needed", "on")
+
+
+# solver.ruled_shape of a ruleset (allorules/solve/held_regions.py, rule_held_regions): a region that is
+# neither torso nor limb and whose rules fix only its size (the head's mass) keeps its input shape at
+# that size ("hold"), or Eq. 9's α_j reshapes it as the paper does ("reshape").
+RULED_SHAPES = ("hold", "reshape")
 
 
 # solver.posture of a ruleset: legs upright and feet on the ground; legs upright only; neither.

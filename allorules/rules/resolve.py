@@ -20,9 +20,11 @@ from allorules.rules.find import _registry, find_ruleset, looks_like_path, rules
 from allorules.rules.located_yaml import LocatedDocument, _kind, read_located_yaml
 from allorules.rules.model import (
     DEFAULT_SEGMENTER,
+    LIMB_THICKNESS,
     OPEN_REGION_HOLDS,
     OPEN_REGION_SETTINGS,
     POSTURES,
+    RULED_SHAPES,
     TRANSFORM_FORMS,
     TRUNK_STRETCH,
     BodyMassTerm,
@@ -529,10 +531,15 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
     _take_choice(values, "posture", POSTURES, settings, problems, where.get("posture", whole),
                  lambda value: f"solver.posture {value!r} is not one of 'keep' (legs upright and feet on the ground), "
                                "'upright' (legs upright) or 'free' (as Eq. 9 leaves them)")
-    if isinstance(values.get("trunk_stretch"), bool):    # YAML reads a bare on/off (yes/no) as a boolean
-        values = {**values, "trunk_stretch": "on" if values["trunk_stretch"] else "off"}
-    _take_choice(values, "trunk_stretch", TRUNK_STRETCH, settings, problems, where.get("trunk_stretch", whole),
-                 lambda value: f"solver.trunk_stretch {value!r} is not one of {', '.join(map(repr, TRUNK_STRETCH))}")
+    _take_choice(values, "ruled_shape", RULED_SHAPES, settings, problems, where.get("ruled_shape", whole),
+                 lambda value: f"solver.ruled_shape {value!r} is not one of 'hold' (a head sized by its rule keeps its "
+                               "shape) or 'reshape' (Eq. 9's α reshapes it)")
+    for key, choices in (("trunk_stretch", TRUNK_STRETCH), ("limb_thickness", LIMB_THICKNESS)):
+        if isinstance(values.get(key), bool):    # YAML reads a bare on/off (yes/no) as a boolean
+            values = {**values, key: "on" if values[key] else "off"}
+        _take_choice(values, key, choices, settings, problems, where.get(key, whole),
+                     lambda value, key=key, choices=choices:
+                     f"solver.{key} {value!r} is not one of {', '.join(map(repr, choices))}")
     if "detail_cutoff" in values:
         cutoff = values["detail_cutoff"]
         if cutoff is None:

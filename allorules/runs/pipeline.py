@@ -313,19 +313,20 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return result
     missed = result.messages[0] if result.messages else "a target missed"
     tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
-    if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
-        log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with the "
-                    "trunk's length along the body as one more variable", missed)
-        stretched = run(replace(scaling.ruleset, solver=replace(solver, trunk_stretch="on")), body)
-        if stretched.converged:
-            trunk = stretched.trunk_length_exponent
+    for variable, what in _more_variables(solver):
+        solver = replace(solver, **{variable: "on"})
+        log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with %s as "
+                    "one more variable", missed, what)
+        again = run(replace(scaling.ruleset, solver=solver), body)
+        if again.converged:
+            trunk = again.trunk_length_exponent if variable == "trunk_stretch" else None
             grown = "" if trunk is None else f"length exponent {trunk:.3f}, isometric 0.333; "
-            stretched.warnings.insert(0, f"the open regions held by their shape, the rules were met only with the trunk "
-                                         f"lengthened along the body ({grown}solver.trunk_stretch); without it: {missed}")
-            log.warning("%s", stretched.warnings[0])
-            return stretched
-        why = stretched.messages[0] if stretched.messages else "a target missed"
-        tried.append(f"with the trunk's length as one more variable the run did not help ({why})")
+            again.warnings.insert(0, f"the open regions held by their shape, the rules were met only with {what} as one "
+                                     f"more variable ({grown}solver.{variable}); without it: {missed}")
+            log.warning("%s", again.warnings[0])
+            return again
+        why = again.messages[0] if again.messages else "a target missed"
+        tried.append(f"with {what} as one more variable the run did not help ({why})")
         log.warning("%s", tried[-1])
     log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with them "
                 "held by soft terms", missed)
@@ -351,6 +352,17 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
                           "isometric: see open_regions in the report", *tried]
     log.warning("%s", again.warnings[0])
     return again
+
+
+def _more_variables(solver) -> list[tuple[str, str]]:
+    """The variables a missed run is tried again with, in order, each kept for the tries after it:
+    the limbs' thickness, then the trunk's stretch (along the forward axis: per-axis transform only)."""
+    more = []
+    if solver.limb_thickness == "when-needed":
+        more.append(("limb_thickness", "the limbs' thickness"))
+    if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
+        more.append(("trunk_stretch", "the trunk's length along the body"))
+    return more
 
 
 def place(body: Body, result: Result, placement: str = "ground") -> tuple[Result, str]:

@@ -103,6 +103,7 @@ class RulesetStep:
     basis_seconds: float = 0.0       # wall time of the step's basis
     solve_seconds: float = 0.0       # wall time of the step's solve (trial meshes and their measures)
     trunk_stretch: float | None = None   # δ of the step, when solver.trunk_stretch was on
+    limb_thickness: float | None = None  # κ of the step, when solver.limb_thickness was on
 
     def as_dict(self) -> dict:
         return {
@@ -111,6 +112,7 @@ class RulesetStep:
             "alpha0": float(self.alpha0),
             "alphas": {key: float(value) for key, value in self.alphas.items()},
             "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
+            "limb_thickness": None if self.limb_thickness is None else float(self.limb_thickness),
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "energy": float(self.energy),
             "evaluations": int(self.evaluations),

@@ -62,7 +62,7 @@ from allorules.runs.results import (
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
 from allorules.solve.energy import RESIDUAL_TOLERANCE, cached_measure, energy_terms
-from allorules.solve.held_regions import HeldRegions, hold_regions
+from allorules.solve.held_regions import HeldRegions, hold_regions, rule_held_regions
 from allorules.solve.open_regions import (
     extra_regions,
     open_region_outcomes,
@@ -165,8 +165,10 @@ def scale_with_ruleset(
     basis_age = 0                                       # steps the current basis has served
     # Regions no rule measures are held isometric (METHOD §10): by their shape (given their input
     # shape at the isometric factor after Eq. 9), else by soft terms and an α for each soft-held
-    # appendage the ruleset does not list.
-    held = hold_regions(initial, shape_held_regions(ruleset, initial))
+    # appendage the ruleset does not list. A head whose rule fixes only its size is held by its
+    # shape at that size (solver.ruled_shape).
+    ruled = rule_held_regions(ruleset, initial)
+    held = hold_regions(initial, shape_held_regions(ruleset, initial) + tuple(ruled), ruled)
     open_terms, open_notes = open_region_terms(ruleset, initial, registry, measure, held.regions)
     appendages = extra_regions(ruleset, initial, held.regions)
     result.warnings.extend(held.notes)
@@ -180,6 +182,7 @@ def scale_with_ruleset(
     if ruleset.solver.trunk_stretch == "on" and not stretch:
         result.warnings.append("solver.trunk_stretch is on but the transform is per-mode, which has no forward axis: "
                                "the trunk was not stretched")
+    thicken = ruleset.solver.limb_thickness == "on"     # κ, the limbs' thickness (solve/limb_thickness.py)
     progress = progress or RunProgress()
     every = BASIS_EVERY if basis_every is None else int(basis_every)
     for index, ratio in enumerate(ratios):
@@ -202,7 +205,7 @@ def scale_with_ruleset(
                               start=start, on_trial=progress.trial, corrections=corrections,
                               constraint_reference=(initial, reached * ratio), extra_terms=open_terms,
                               extra_regions=appendages, held=held, held_scale=isometric,
-                              trunk_stretch=stretch)
+                              trunk_stretch=stretch, limb_thickness=thicken)
 
         try:
             solution = solve(_capped(ruleset) if reused else ruleset, basis)
@@ -257,11 +260,11 @@ def scale_with_ruleset(
             status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
             flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
             basis_seconds=solving - started + again, solve_seconds=solved - solving - again,
-            trunk_stretch=solution.trunk_stretch,
+            trunk_stretch=solution.trunk_stretch, limb_thickness=solution.limb_thickness,
         ))
-        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, δ = %s, %d trials, %s", index + 1, len(ratios),
+        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, δ = %s, κ = %s, %d trials, %s", index + 1, len(ratios),
                   solution.scale, solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()},
-                  solution.trunk_stretch, solution.evaluations, solution.status)
+                  solution.trunk_stretch, solution.limb_thickness, solution.evaluations, solution.status)
         current = following
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))

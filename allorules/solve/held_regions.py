@@ -32,6 +32,7 @@ vertices, is not held so (a note says so; the soft terms then hold it).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Mapping
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -47,11 +48,12 @@ from allorules.mesh.topology import (
 from allorules.segment.regions import NEIGHBOUR_REGION
 
 ZONE = 1.0              # width of a blend zone beyond an opening, in opening radii (along the surface)
+RULED_ZONE = 0.5        # ... beyond a ruled part's near opening (the neck's end tapers to a smaller head)
 MIN_VERTICES = 8        # smaller parts carry no shape to keep
 ISLAND_SHARE = 0.05     # a side of the body beyond a part smaller than this share of the part's area is part of it
 ROOT_REGIONS = ("chest", "abdomen")   # the torso: what a held part's near opening faces
 
-__all__ = ["BlendZone", "HeldPart", "HeldRegions", "hold_regions"]
+__all__ = ["BlendZone", "HeldPart", "HeldRegions", "hold_regions", "rule_held_regions"]
 
 
 def _smoothstep(ramp: np.ndarray) -> np.ndarray:
@@ -70,9 +72,10 @@ class BlendZone:
     weight: np.ndarray
 
     @classmethod
-    def beyond(cls, graph, opening: np.ndarray, side: np.ndarray, reference: np.ndarray) -> "BlendZone":
+    def beyond(cls, graph, opening: np.ndarray, side: np.ndarray, reference: np.ndarray,
+               zone: float = ZONE) -> "BlendZone":
         """The zone of ``side`` (a mask of body vertices) beyond ``opening`` (body ids): distances
-        along the surface within the side and the opening, width ``ZONE`` opening radii."""
+        along the surface within the side and the opening, width ``zone`` opening radii."""
         allowed = side.copy()
         allowed[opening] = True
         index = np.flatnonzero(allowed)
@@ -83,7 +86,7 @@ class BlendZone:
                                         return_predecessors=True)
         points = reference[opening]
         radius = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
-        width = ZONE * radius
+        width = zone * radius
         inside = side[index] & np.isfinite(distance) & (distance < width)
         lookup = np.full(len(side), -1)
         lookup[opening] = np.arange(len(opening))
@@ -112,7 +115,9 @@ class HeldPart:
     ``parent``: for an appendage, the body vertices of the region it grows from (the head under an
     ear, the abdomen under a tail), whose turn it follows, and ``parent_reference`` /
     ``parent_weights`` their input positions and area shares;
-    ``near_zone`` / ``far_zone``: where the openings' mismatch is spread."""
+    ``near_zone`` / ``far_zone``: where the openings' mismatch is spread; ``size_exponent``: the
+    part is sized ``scale ** size_exponent`` for the isometric factor ``scale`` (1 for an open
+    region; 3e/d for a region held by a rule of exponent e on a measure of dimension d)."""
 
     region: str
     members: np.ndarray
@@ -126,6 +131,7 @@ class HeldPart:
     parent: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     parent_reference: np.ndarray | None = None
     parent_weights: np.ndarray | None = None
+    size_exponent: float = 1.0   # the part's size factor is scale ** this: 1 isometric, a ruled head its rule's
 
     def parent_turn(self, vertices: np.ndarray) -> np.ndarray | None:
         """How the region this appendage grows from turned (``vertices``: the whole body now)."""
@@ -157,7 +163,7 @@ class HeldPart:
         """Give the part (in ``vertices``, in place) its reference shape × ``scale``; move its
         children with its far opening and spread the openings' mismatch over the zones."""
         moved = vertices[self.members]
-        shape = self.shape(moved, scale, self.parent_turn(vertices))
+        shape = self.shape(moved, scale ** self.size_exponent, self.parent_turn(vertices))
         self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
         if len(self.far):
             shift = shape[self.far].mean(axis=0) - moved[self.far].mean(axis=0)
@@ -180,7 +186,8 @@ class HeldRegions:
 
     def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
         """``vertices`` with every held part given its input shape × ``scale`` (the isometric factor
-        from the run's input), placed where ``vertices`` have it (module docstring)."""
+        from the run's input; a ruled part × ``scale ** size_exponent``), placed where ``vertices``
+        have it (module docstring)."""
         if not self.parts:
             return vertices
         result = np.array(vertices, dtype=float, copy=True)
@@ -218,9 +225,10 @@ def _pieces(faces: np.ndarray, count: int) -> list[np.ndarray]:
     return sorted((np.flatnonzero(component == k) for k in np.unique(component)), key=len, reverse=True)
 
 
-def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
+def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[str, float] | None = None) -> HeldRegions:
     """The :class:`HeldRegions` of ``regions`` on ``body`` (the run's input, labelled).
 
+    ``size_exponents``: regions held at another size than isometric (:func:`rule_held_regions`).
     Each connected part of a region is held. Its near opening is where it meets the side of the
     body that holds the torso (``ROOT_REGIONS``; without them, the largest side); every other side
     (the head beyond the neck) is its children. A part that does not touch that side, or has fewer
@@ -237,6 +245,7 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
             root |= body.region_mask(name)
     found: list[HeldPart] = []
     notes: list[str] = []
+    sizes = dict(size_exponents or {})
     for region in regions:
         if not body.has_region(region):
             continue
@@ -260,8 +269,9 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
             far_ids = np.setdiff1d(np.unique(members[touching.row][(neighbour_side >= 0) & (neighbour_side != root_side)]),
                                    near_ids)
             if root_side < 0 or not len(near_ids):
-                notes.append(f"open region {region}: a part of {len(members)} vertices does not join the torso's side "
-                             "of the body; it is held by soft terms")
+                notes.append(f"region {region}: a part of {len(members)} vertices does not join the torso's side of the "
+                             "body; " + ("Eq. 9 reshapes it as its rule asks" if region in sizes
+                                         else "it is held by soft terms"))
                 continue
             child_side = (side_of >= 0) & (side_of != root_side)
             reference = body.vertices[members].copy()
@@ -276,9 +286,11 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
             found.append(HeldPart(
                 region, members, reference, areas[members] / areas[members].sum(),
                 np.searchsorted(members, near_ids), np.searchsorted(members, far_ids), np.flatnonzero(child_side),
-                BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices),
+                BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices,
+                                 RULED_ZONE if region in sizes else ZONE),
                 BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None,
-                parent, body.vertices[parent].copy(), areas[parent] / max(areas[parent].sum(), 1e-300)))
+                parent, body.vertices[parent].copy(), areas[parent] / max(areas[parent].sum(), 1e-300),
+                float(sizes.get(region, 1.0))))
     # parts that carry others (the neck carries the head and its ears) first. A zone spreads its
     # opening's mismatch over the body beside it, never over an appendage (tail, ears, horns, trunk)
     # held before it (applied after the ears, the horns' zone moved the cow's small ears: ears
@@ -293,3 +305,32 @@ def hold_regions(body: Body, regions: tuple[str, ...]) -> HeldRegions:
         if part.region in NEIGHBOUR_REGION:
             held_before = np.concatenate([held_before, part.members])
     return HeldRegions(tuple(ordered), tuple(notes))
+
+
+# A ruled region's size from its rule: a measure of dimension d (mass 3, length and girth 1) with
+# exponent e grows by R^e, so the region's size by R^(e/d) = scale^(3e/d), scale = R^(1/3).
+MEASURE_DIMENSIONS = {"mass": 3.0, "length": 1.0, "girth": 1.0}
+
+
+def rule_held_regions(ruleset, body: Body) -> dict[str, float]:
+    """The ruled regions held by their shape (``solver.ruled_shape: hold``, the default), each with
+    its size exponent (:class:`HeldPart`): a region of ``body`` that is neither torso nor limb (the
+    head) whose rules all ask one size of it, on measures of known dimension (mass, length,
+    girth). Its rule is then met by construction and its eyes, ears and horns keep their shape:
+    reshaped by Eq. 9's α instead, the real horse's head came out a thin beak at ×2 once the legs
+    could thicken (solver.limb_thickness) and the Princeton pig's ears crumpled (docs/method.md,
+    "the head held by its rule")."""
+    from allorules.measure.parts import LIMB_REGIONS, TORSO_REGIONS
+
+    if ruleset.solver.ruled_shape != "hold":
+        return {}
+    held: dict[str, float] = {}
+    for region in ruleset.regions:
+        rules = [rule for rule in ruleset.rules if rule.region == region]
+        if (region in TORSO_REGIONS or region in LIMB_REGIONS or not rules or not body.has_region(region)
+                or any(rule.measure not in MEASURE_DIMENSIONS for rule in rules)):
+            continue
+        sizes = {round(3.0 * rule.exponent / MEASURE_DIMENSIONS[rule.measure], 9) for rule in rules}
+        if len(sizes) == 1:
+            held[region] = sizes.pop()
+    return held

@@ -22,7 +22,9 @@ where the mesh sits in space (Eq. 5 on raw coordinates would).
 **Variables**: ``(s, α_0, α_j for each ruleset region)``; start at s = r^(1/3), every α = 0
 (isometric scaling to the step's mass), which is already close for allometric exponents. With
 ``solver.trunk_stretch`` on, one more: δ, the trunk's stretch along the animal's forward axis
-(:func:`allorules.spectral.power_laws.stretch_first_axis`, bounds ``TRUNK_STRETCH_BOUNDS``, start 0).
+(:func:`allorules.spectral.power_laws.stretch_first_axis`, bounds ``TRUNK_STRETCH_BOUNDS``, start 0);
+with ``solver.limb_thickness`` on, one more after it: κ, the limbs' thickening across their centre
+lines (:mod:`allorules.solve.limb_thickness`, bounds ``LIMB_THICKNESS_BOUNDS``, start 0).
 
 **Energy** (Eq. 11 with relative residuals, METHOD §6): a weighted sum of squared relative
 residuals, one term per active part of the ruleset:
@@ -85,6 +87,7 @@ from allorules.solve.energy import (
     cached_measure,
 )
 from allorules.solve.held_regions import HeldRegions
+from allorules.solve.limb_thickness import LIMB_THICKNESS_BOUNDS
 from allorules.solve.posture import FootContact
 from allorules.solve.transform import StepTransform
 from allorules.spectral.basis import HarmonicBasis
@@ -129,11 +132,12 @@ class StepSolution:
     jacobian: np.ndarray | None = field(default=None, repr=False)   # of the residual vector, for the next step
     feet: FootContact | None = field(default=None, repr=False)      # the step's foot contact (posture keep)
     trunk_stretch: float | None = None                              # δ, when solver.trunk_stretch is on
+    limb_thickness: float | None = None                             # κ, when solver.limb_thickness is on
 
     @property
     def variables(self) -> np.ndarray:
-        stretch = [] if self.trunk_stretch is None else [self.trunk_stretch]
-        return np.array([self.scale, self.alpha0, *self.alphas.values(), *stretch])
+        extra = [value for value in (self.trunk_stretch, self.limb_thickness) if value is not None]
+        return np.array([self.scale, self.alpha0, *self.alphas.values(), *extra])
 
     def as_dict(self) -> dict:
         return {
@@ -141,6 +145,7 @@ class StepSolution:
             "alpha0": float(self.alpha0),
             "alphas": {key: float(value) for key, value in self.alphas.items()},
             "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
+            "limb_thickness": None if self.limb_thickness is None else float(self.limb_thickness),
             "energy": float(self.energy),
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "evaluations": int(self.evaluations),
@@ -222,6 +227,7 @@ def solve_step(
     held: HeldRegions | None = None,
     held_scale: float = 1.0,
     trunk_stretch: bool = False,
+    limb_thickness: bool = False,
 ) -> StepSolution:
     """Minimise the step's energy over (s, α_0, α_j) (paper Eq. 11, METHOD §6); the best trial wins.
 
@@ -236,7 +242,8 @@ def solve_step(
     join the energy; ``extra_regions`` (appendages the ruleset does not list) get an α_j each;
     ``held`` open regions are given their input shape × ``held_scale`` after Eq. 9
     (:mod:`allorules.solve.held_regions`). ``trunk_stretch`` adds δ, the trunk's stretch along the
-    animal's forward axis, as the last variable (:func:`allorules.spectral.power_laws.stretch_first_axis`).
+    animal's forward axis, as one more variable (:func:`allorules.spectral.power_laws.stretch_first_axis`);
+    ``limb_thickness`` adds κ, the limbs' thickening, after it (:mod:`allorules.solve.limb_thickness`).
     ``solver.detail_cutoff`` splits the surface into base and detail (:class:`allorules.spectral.power_laws.DetailLayer`).
     Raises :class:`ScalingError` only when no trial could be measured at all.
     """
@@ -245,16 +252,16 @@ def solve_step(
     regions = tuple(ruleset.regions) + tuple(extra_regions)
     step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
                             detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale,
-                            trunk_stretch=trunk_stretch)
+                            trunk_stretch=trunk_stretch, limb_thickness=limb_thickness)
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference,
                         extra_terms)
 
     count = step.variable_count
-    stretched = step.trunk_gate is not None
+    stretched, thickened = step.trunk_gate is not None, step.limb_field is not None
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (1 + len(regions)),
-                      *[TRUNK_STRETCH_BOUNDS[0]] * stretched], dtype=float)
+                      *[TRUNK_STRETCH_BOUNDS[0]] * stretched, *[LIMB_THICKNESS_BOUNDS[0]] * thickened], dtype=float)
     upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (1 + len(regions)),
-                      *[TRUNK_STRETCH_BOUNDS[1]] * stretched], dtype=float)
+                      *[TRUNK_STRETCH_BOUNDS[1]] * stretched, *[LIMB_THICKNESS_BOUNDS[1]] * thickened], dtype=float)
     isometric = np.zeros(count)
     isometric[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
     isometric = np.clip(isometric, lower, upper)
@@ -307,7 +314,8 @@ def solve_step(
         failed_evaluations=failed,
         jacobian=jacobian,
         feet=step.feet,
-        trunk_stretch=float(best.variables[-1]) if stretched else None,
+        trunk_stretch=float(best.variables[2 + len(regions)]) if stretched else None,
+        limb_thickness=float(best.variables[-1]) if thickened else None,
     )
 
 

@@ -11,6 +11,7 @@ from allorules.body import Body
 from allorules.measure.parts import TORSO_REGIONS
 from allorules.rules.model import TRANSFORM_FORMS
 from allorules.solve.held_regions import HeldRegions
+from allorules.solve.limb_thickness import thickening_field
 from allorules.solve.posture import FootContact
 from allorules.spectral.basis import HarmonicBasis, transform
 from allorules.spectral.power_laws import (
@@ -79,11 +80,12 @@ class StepTransform:
     held: HeldRegions | None = None    # open regions held as a similarity of their input shape (solve/held_regions.py)
     held_scale: float = 1.0            # ... at this isometric factor from the run's input
     trunk_gate: np.ndarray | None = None   # solver.trunk_stretch: G of the trunk's forward coefficients, per mode
+    limb_field: np.ndarray | None = None   # solver.limb_thickness: D̃, the limbs' thickening in the basis (m, 3)
 
     @classmethod
     def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
            keep_feet: bool = False, detail_cutoff: float | None = None, held: HeldRegions | None = None,
-           held_scale: float = 1.0, trunk_stretch: bool = False) -> "StepTransform":
+           held_scale: float = 1.0, trunk_stretch: bool = False, limb_thickness: bool = False) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
         if trunk_stretch and form != "per-axis":
@@ -108,34 +110,39 @@ class StepTransform:
         trunk = [region_u for region, region_u in zip(regions, region_us) if region in TORSO_REGIONS]
         if trunk_stretch and trunk:
             trunk_gate = geometric_mean_gate(u[:, 0], sum(trunk)[:, 0])
+        limb_field = transform(basis, thickening_field(body)) if limb_thickness else None
         feet = FootContact.of(body) if keep_feet else None
         detail = None
         if detail_cutoff is not None:
             taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
             detail = DetailLayer(basis, body.vertices, coefficients, taper)
         return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail, held,
-                   float(held_scale), trunk_gate)
+                   float(held_scale), trunk_gate, limb_field)
 
     @property
     def variable_count(self) -> int:
-        """(s, α_0, one α_j per region[, δ the trunk's stretch])."""
-        return 2 + len(self.regions) + (self.trunk_gate is not None)
+        """(s, α_0, one α_j per region[, δ the trunk's stretch][, κ the limbs' thickness])."""
+        return 2 + len(self.regions) + (self.trunk_gate is not None) + (self.limb_field is not None)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k[, δ])`` (Eq. 9 with detail kept, the trunk stretched by δ;
-        then the feet put back; then the held open regions given their input shape)."""
+        """Vertices for ``(s, α_0, α_1 … α_k[, δ][, κ])`` (Eq. 9 with detail kept, the trunk
+        stretched by δ, the limbs thickened by κ; then the feet put back; then the held open
+        regions given their input shape)."""
         count = len(self.regions)
         scale, alpha0 = float(variables[0]), float(variables[1])
         alphas = [float(a) for a in variables[2:2 + count]]
+        extra = iter(float(value) for value in variables[2 + count:])   # δ, κ: those switched on, in order
         u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
         if self.trunk_gate is not None:
-            u_new = stretch_first_axis(u_new, self.trunk_gate, float(variables[2 + count]))
+            u_new = stretch_first_axis(u_new, self.trunk_gate, next(extra))
         if self.form == "per-axis":
             # x̃' = x̃ + c·(u' − u), the change taken in the animal's axes and turned back to the
             # mesh's; exactly x̃ where u' = u
             new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
         else:
             new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
+        if self.limb_field is not None:   # x̃' += κ·s·D̃ (solve/limb_thickness.py)
+            new_coefficients = new_coefficients + next(extra) * scale * self.limb_field
         if self.detail is not None:
             vertices = self.detail.apply(new_coefficients)
         else:
