@@ -261,6 +261,32 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     assert pipeline.scale(body, scaling, registry=pipeline.registry_for(None)).converged and calls == [1]
 
 
+def test_a_head_whose_rule_fixes_its_size_is_held_at_that_size_unless_told(generated_horse):
+    """rule_held_regions: quadruped's head (mass 0.70) is held at scale^0.70 (R^(0.7/3)); a head with
+    a length rule that agrees is too; rules that ask two sizes, a torso or limb region, a measure of
+    unknown dimension and solver.ruled_shape: reshape hold nothing."""
+    from allorules.rules.model import Rule
+    from allorules.rules.resolve import load_ruleset
+    from allorules.solve.held_regions import rule_held_regions
+
+    body = generated_horse.body()
+    quadruped = load_ruleset("quadruped")
+    assert rule_held_regions(quadruped, body) == {"head": 0.7}
+
+    def with_rules(*extra):
+        return replace(quadruped, rules=quadruped.rules + tuple(extra))
+
+    agrees = Rule(id="head-length", region="head", measure="length", exponent=0.7 / 3)
+    assert rule_held_regions(with_rules(agrees), body) == {"head": 0.7}
+    disagrees = Rule(id="head-length", region="head", measure="length", exponent=0.3)
+    assert rule_held_regions(with_rules(disagrees), body) == {}
+    unknown = Rule(id="head-fur", region="head", measure="fur-depth", exponent=0.3)
+    assert rule_held_regions(with_rules(unknown), body) == {}
+    assert rule_held_regions(replace(quadruped, solver=replace(quadruped.solver, ruled_shape="reshape")), body) == {}
+    held = hold_regions(body, ("neck", "head"), {"head": 0.7})
+    assert {part.region: part.size_exponent for part in held.parts} == {"neck": 1.0, "head": 0.7}
+
+
 def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_on(generated_horse, monkeypatch):
     """solver.limb_thickness: when-needed makes a missed run again with κ, then with κ and δ (each
     variable kept for the tries after it), then with soft terms; the first that meets is kept and

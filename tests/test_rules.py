@@ -366,6 +366,7 @@ def test_solver_errors(tmp_path, registry):
         "solver: {posture: standing}": "posture",
         "solver: {trunk_stretch: sometimes}": "solver.trunk_stretch 'sometimes' is not one of 'when-needed', 'on', 'off'",
         "solver: {limb_thickness: thick}": "solver.limb_thickness 'thick' is not one of 'off', 'when-needed', 'on'",
+        "solver: {ruled_shape: keep}": "solver.ruled_shape 'keep' is not one of",
     }
     for line, message in cases.items():
         _, problems = single_problem(tmp_path, MINIMAL + line + "\n", registry)
