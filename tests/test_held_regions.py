@@ -136,19 +136,18 @@ def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_r
     for region in ("neck", "tail"):
         assert outcomes[(region, "length")].hold == "shape"
         assert abs(outcomes[(region, "length")].achieved_exponent - 1 / 3) <= 0.02
-    # the neck's end tapers over half an opening radius to the head, which its rule holds smaller
-    # than isometric (measured 0.977 at ×2, 0.974 at ×0.5 on this short neck; the real horse 0.99)
-    assert abs(outcomes[("tail", "mass")].achieved_exponent - 1.0) <= 0.02
-    assert abs(outcomes[("neck", "mass")].achieved_exponent - 1.0) <= 0.03
+        assert abs(outcomes[(region, "mass")].achieved_exponent - 1.0) <= 0.02
+    # neck and tail are exact similarities of their input at the isometric factor; the head, held
+    # at its rule's size, is one too away from its base (which meets the neck), at the size the
+    # solver gave it to meet its mass
     held = hold_regions(body, ("neck", "tail", "head"), {"head": 0.7})
     for part in held.parts:
-        scale, residual = _similarity_residual(body.vertices[part.members], result.body.vertices[part.members])
-        if part.region == "neck":     # but for its end, in the head's zone
-            head = held.parts[[p.region for p in held.parts].index("head")]
-            end = np.isin(part.members, np.concatenate([head.near_zone.vertices, head.members]))
-            scale, residual = _similarity_residual(body.vertices[part.members[~end]], result.body.vertices[part.members[~end]])
-        expected = ratio ** (0.7 / 3) if part.region == "head" else ratio ** (1 / 3)
-        assert scale == pytest.approx(expected, rel=1e-6) and residual < 1e-6, (part.region, scale, expected, residual)
+        members = part.members[~np.isin(part.members, part.near_zone.vertices)] if part.ruled else part.members
+        scale, residual = _similarity_residual(body.vertices[members], result.body.vertices[members])
+        expected = ratio ** (0.7 / 3) if part.ruled else ratio ** (1 / 3)
+        assert residual < 1e-6, (part.region, residual)
+        assert scale == pytest.approx(expected, rel=0.05 if part.ruled else 1e-6), (part.region, scale, expected)
+    assert result.steps[-1].sizes and "head" not in result.steps[-1].alphas
     # measured: openings' worst 1.50 / 1.83 (×2), 1.63 / 2.57 (×0.5); the body's own worst 1.91 / 3.26
     jump = _worst_stretch_jump(body.vertices, result.body.vertices, body.faces)
     openings = np.zeros(len(jump), dtype=bool)

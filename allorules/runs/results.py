@@ -104,6 +104,7 @@ class RulesetStep:
     solve_seconds: float = 0.0       # wall time of the step's solve (trial meshes and their measures)
     trunk_stretch: float | None = None   # δ of the step, when solver.trunk_stretch was on
     limb_thickness: float | None = None  # κ of the step, when solver.limb_thickness was on
+    sizes: dict[str, float] = field(default_factory=dict)   # each region held at its rule's size: its size − 1
 
     def as_dict(self) -> dict:
         return {
@@ -113,6 +114,7 @@ class RulesetStep:
             "alphas": {key: float(value) for key, value in self.alphas.items()},
             "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
             "limb_thickness": None if self.limb_thickness is None else float(self.limb_thickness),
+            "sizes": {key: float(value) for key, value in self.sizes.items()},
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "energy": float(self.energy),
             "evaluations": int(self.evaluations),

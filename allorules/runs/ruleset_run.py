@@ -260,11 +260,12 @@ def scale_with_ruleset(
             status=solution.status, mass_ratio=mass_out / mass_in, stress_ratio=stress_ratio,
             flipped_faces=count_flipped_faces(current.vertices, following.vertices, current.faces), modes=basis.modes,
             basis_seconds=solving - started + again, solve_seconds=solved - solving - again,
-            trunk_stretch=solution.trunk_stretch, limb_thickness=solution.limb_thickness,
+            trunk_stretch=solution.trunk_stretch, limb_thickness=solution.limb_thickness, sizes=dict(solution.sizes),
         ))
-        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, δ = %s, κ = %s, %d trials, %s", index + 1, len(ratios),
-                  solution.scale, solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()},
-                  solution.trunk_stretch, solution.limb_thickness, solution.evaluations, solution.status)
+        log.debug("step %d/%d: s = %.5f, α0 = %.4f, α = %s, δ = %s, κ = %s, sizes %s, %d trials, %s", index + 1,
+                  len(ratios), solution.scale, solution.alpha0, {k: round(v, 4) for k, v in solution.alphas.items()},
+                  solution.trunk_stretch, solution.limb_thickness, {k: round(v, 4) for k, v in solution.sizes.items()},
+                  solution.evaluations, solution.status)
         current = following
         reached *= ratio
         progress.step_finished(index + 1, len(ratios))
@@ -288,7 +289,8 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         following = following.with_vertices(solution.feet.apply(following.vertices, solution.scale))
     if held.parts:
         # the feet's shift reaches every vertex: the held parts given their shape once more
-        following = following.with_vertices(held.apply(following.vertices, isometric))
+        sizes = {region: 1.0 + value for region, value in solution.sizes.items()}
+        following = following.with_vertices(held.apply(following.vertices, isometric, sizes))
     return following
 
 

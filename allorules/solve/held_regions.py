@@ -28,6 +28,12 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
 
 A part that does not touch the torso's side of the body, or has fewer than ``MIN_VERTICES``
 vertices, is not held so (a note says so; the soft terms then hold it).
+
+A ruled region whose rules fix only its size (the head of ``quadruped``: mass exponent 0.70) is
+held the same way at the size its rule asks instead of the isometric one
+(:func:`rule_held_regions`), times a size the solver sets to meet the rule: its eyes, ears and
+horns keep their shape. Its own base takes the difference in size from the isometric neck, over
+a zone half as wide inside it, so that the neck stays isometric.
 """
 from __future__ import annotations
 
@@ -48,7 +54,7 @@ from allorules.mesh.topology import (
 from allorules.segment.regions import NEIGHBOUR_REGION
 
 ZONE = 1.0              # width of a blend zone beyond an opening, in opening radii (along the surface)
-RULED_ZONE = 0.5        # ... beyond a ruled part's near opening (the neck's end tapers to a smaller head)
+RULED_ZONE = 0.5        # ... inside a ruled part's near opening (the head's base meets the isometric neck)
 MIN_VERTICES = 8        # smaller parts carry no shape to keep
 ISLAND_SHARE = 0.05     # a side of the body beyond a part smaller than this share of the part's area is part of it
 ROOT_REGIONS = ("chest", "abdomen")   # the torso: what a held part's near opening faces
@@ -73,9 +79,10 @@ class BlendZone:
 
     @classmethod
     def beyond(cls, graph, opening: np.ndarray, side: np.ndarray, reference: np.ndarray,
-               zone: float = ZONE) -> "BlendZone":
+               zone: float | None = None) -> "BlendZone":
         """The zone of ``side`` (a mask of body vertices) beyond ``opening`` (body ids): distances
-        along the surface within the side and the opening, width ``zone`` opening radii."""
+        along the surface within the side and the opening, width ``zone`` opening radii (default
+        ``ZONE``)."""
         allowed = side.copy()
         allowed[opening] = True
         index = np.flatnonzero(allowed)
@@ -86,7 +93,7 @@ class BlendZone:
                                         return_predecessors=True)
         points = reference[opening]
         radius = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
-        width = zone * radius
+        width = (ZONE if zone is None else zone) * radius
         inside = side[index] & np.isfinite(distance) & (distance < width)
         lookup = np.full(len(side), -1)
         lookup[opening] = np.arange(len(opening))
@@ -104,6 +111,9 @@ class BlendZone:
             vertices[self.vertices] += self.weight[:, None] * correction[self.source]
 
 
+_EMPTY_ZONE = BlendZone(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
+
+
 @dataclass(frozen=True)
 class HeldPart:
     """One connected part of a held region and what moves with it.
@@ -117,7 +127,10 @@ class HeldPart:
     ``parent_weights`` their input positions and area shares;
     ``near_zone`` / ``far_zone``: where the openings' mismatch is spread; ``size_exponent``: the
     part is sized ``scale ** size_exponent`` for the isometric factor ``scale`` (1 for an open
-    region; 3e/d for a region held by a rule of exponent e on a measure of dimension d)."""
+    region; 3e/d for a region held by a rule of exponent e on a measure of dimension d);
+    ``ruled``: such a part's near zone lies inside it (its base takes the opening where the region
+    before it left it, so that an isometric neck stays isometric) and its size is a variable of
+    the solver (the rule is met by the solver, the base's blend included)."""
 
     region: str
     members: np.ndarray
@@ -132,6 +145,8 @@ class HeldPart:
     parent_reference: np.ndarray | None = None
     parent_weights: np.ndarray | None = None
     size_exponent: float = 1.0   # the part's size factor is scale ** this: 1 isometric, a ruled head its rule's
+    ruled: bool = False          # held at its rule's size: its base blends to where its neighbour left the opening
+    seam: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # ruled: members on the torso side's faces
 
     def parent_turn(self, vertices: np.ndarray) -> np.ndarray | None:
         """How the region this appendage grows from turned (``vertices``: the whole body now)."""
@@ -159,18 +174,22 @@ class HeldPart:
         shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
-    def apply(self, vertices: np.ndarray, scale: float) -> None:
-        """Give the part (in ``vertices``, in place) its reference shape × ``scale``; move its
-        children with its far opening and spread the openings' mismatch over the zones."""
+    def apply(self, vertices: np.ndarray, scale: float, size: float = 1.0) -> None:
+        """Give the part (in ``vertices``, in place) its reference shape × ``scale ** size_exponent``
+        × ``size``; move its children with its far opening and spread the openings' mismatch over
+        the zones (a ruled part's near zone: over its own base, after it has its shape)."""
         moved = vertices[self.members]
-        shape = self.shape(moved, scale ** self.size_exponent, self.parent_turn(vertices))
-        self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
+        shape = self.shape(moved, scale ** self.size_exponent * size, self.parent_turn(vertices))
+        if not self.ruled:
+            self.near_zone.apply(vertices, shape[self.near] - moved[self.near])
         if len(self.far):
             shift = shape[self.far].mean(axis=0) - moved[self.far].mean(axis=0)
             vertices[self.children] += shift
             if self.far_zone is not None:
                 self.far_zone.apply(vertices, shape[self.far] - (moved[self.far] + shift))
         vertices[self.members] = shape
+        if self.ruled:   # every vertex it shares with the side before it stays where that side has it
+            self.near_zone.apply(vertices, moved[self.seam] - shape[self.seam])
 
 
 @dataclass(frozen=True)
@@ -184,15 +203,21 @@ class HeldRegions:
     def regions(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys(part.region for part in self.parts))
 
-    def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
+    @property
+    def ruled(self) -> tuple[str, ...]:
+        """The regions held at their rule's size, whose size is a variable of the solver."""
+        return tuple(dict.fromkeys(part.region for part in self.parts if part.ruled))
+
+    def apply(self, vertices: np.ndarray, scale: float, sizes: Mapping[str, float] | None = None) -> np.ndarray:
         """``vertices`` with every held part given its input shape × ``scale`` (the isometric factor
-        from the run's input; a ruled part × ``scale ** size_exponent``), placed where ``vertices``
-        have it (module docstring)."""
+        from the run's input; a ruled part × ``scale ** size_exponent`` × its entry in ``sizes``),
+        placed where ``vertices`` have it (module docstring)."""
         if not self.parts:
             return vertices
+        sizes = sizes or {}
         result = np.array(vertices, dtype=float, copy=True)
         for part in self.parts:
-            part.apply(result, scale)
+            part.apply(result, scale, float(sizes.get(part.region, 1.0)))
         return result
 
 
@@ -251,7 +276,8 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
             continue
         # the region's faces as the measures take them (most of their corners in it), so that what
         # is held is what its length and mass are measured on
-        region_faces = body.faces[body.region_face_mask(region)]
+        region_face_ids = np.flatnonzero(body.region_face_mask(region))
+        region_faces = body.faces[region_face_ids]
         for piece in _pieces(region_faces, count):
             faces = region_faces[piece]
             inside = np.zeros(count, dtype=bool)
@@ -283,14 +309,21 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
                 if len(outside):
                     grows_from = np.bincount(body.labels[outside]).argmax()
                     parent = np.setdiff1d(np.flatnonzero(body.labels == grows_from), members)
+            ruled = region in sizes
+            seam_ids = near_ids
+            if ruled:   # its vertices on faces of the torso's side (the neck's last faces), not only its opening's
+                others = np.ones(len(body.faces), dtype=bool)
+                others[region_face_ids[piece]] = False
+                others &= ~np.any(child_side[body.faces], axis=1)
+                seam_ids = np.intersect1d(members, body.faces[others])
             found.append(HeldPart(
                 region, members, reference, areas[members] / areas[members].sum(),
                 np.searchsorted(members, near_ids), np.searchsorted(members, far_ids), np.flatnonzero(child_side),
-                BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices,
-                                 RULED_ZONE if region in sizes else ZONE),
+                # an open part blends the body beside its opening; a ruled one its own base (below)
+                _EMPTY_ZONE if ruled else BlendZone.beyond(graph, near_ids, side_of == root_side, body.vertices),
                 BlendZone.beyond(graph, far_ids, child_side, body.vertices) if len(far_ids) else None,
                 parent, body.vertices[parent].copy(), areas[parent] / max(areas[parent].sum(), 1e-300),
-                float(sizes.get(region, 1.0))))
+                float(sizes.get(region, 1.0)), ruled, np.searchsorted(members, seam_ids)))
     # parts that carry others (the neck carries the head and its ears) first. A zone spreads its
     # opening's mismatch over the body beside it, never over an appendage (tail, ears, horns, trunk)
     # held before it (applied after the ears, the horns' zone moved the cow's small ears: ears
@@ -299,11 +332,22 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
     # after it takes the zone's share before it is given its shape where it then sits.
     ordered: list[HeldPart] = []
     held_before = np.zeros(0, dtype=np.int64)          # the appendages held so far
+    shaped = np.zeros(0, dtype=np.int64)               # every part's vertices held so far
     for part in sorted(found, key=lambda part: -len(part.children)):
+        if part.ruled:
+            # its seam: its vertices on the torso side's faces, and those it shares with a part held
+            # before it (a head vertex that only touches the neck's ring is one of the neck's), so
+            # that the part before keeps its shape exactly
+            seam = np.union1d(part.members[part.seam], np.intersect1d(part.members, shaped))
+            inside = np.zeros(count, dtype=bool)
+            inside[part.members] = True
+            part = replace(part, seam=np.searchsorted(part.members, seam),
+                           near_zone=BlendZone.beyond(graph, seam, inside, body.vertices, RULED_ZONE))
         ordered.append(replace(part, near_zone=part.near_zone.without(held_before),
                                far_zone=None if part.far_zone is None else part.far_zone.without(held_before)))
         if part.region in NEIGHBOUR_REGION:
             held_before = np.concatenate([held_before, part.members])
+        shaped = np.union1d(shaped, part.members)
     return HeldRegions(tuple(ordered), tuple(notes))
 
 
@@ -316,7 +360,7 @@ def rule_held_regions(ruleset, body: Body) -> dict[str, float]:
     """The ruled regions held by their shape (``solver.ruled_shape: hold``, the default), each with
     its size exponent (:class:`HeldPart`): a region of ``body`` that is neither torso nor limb (the
     head) whose rules all ask one size of it, on measures of known dimension (mass, length,
-    girth). Its rule is then met by construction and its eyes, ears and horns keep their shape:
+    girth). The solver meets its rule through its size, and its eyes, ears and horns keep their shape:
     reshaped by Eq. 9's α instead, the real horse's head came out a thin beak at ×2 once the legs
     could thicken (solver.limb_thickness) and the Princeton pig's ears crumpled (docs/method.md,
     "the head held by its rule")."""

@@ -24,7 +24,9 @@ where the mesh sits in space (Eq. 5 on raw coordinates would).
 ``solver.trunk_stretch`` on, one more: δ, the trunk's stretch along the animal's forward axis
 (:func:`allorules.spectral.power_laws.stretch_first_axis`, bounds ``TRUNK_STRETCH_BOUNDS``, start 0);
 with ``solver.limb_thickness`` on, one more after it: κ, the limbs' thickening across their centre
-lines (:mod:`allorules.solve.limb_thickness`, bounds ``LIMB_THICKNESS_BOUNDS``, start 0).
+lines (:mod:`allorules.solve.limb_thickness`, bounds ``LIMB_THICKNESS_BOUNDS``, start 0). A region
+held at its rule's size (the head, ``solver.ruled_shape: hold``) has no α_j; its size is a
+variable instead, last (its held shape × (1 + σ), bounds ``HELD_SIZE_BOUNDS``, start 0).
 
 **Energy** (Eq. 11 with relative residuals, METHOD §6): a weighted sum of squared relative
 residuals, one term per active part of the ruleset:
@@ -98,6 +100,7 @@ JACOBIAN_STEP_SCALE = 1e-3     # relative to s
 JACOBIAN_STEP_ALPHA = 1e-3
 GAUSS_NEWTON_TRIALS = 6
 TRUNK_STRETCH_BOUNDS = (-0.5, 0.5)   # δ per step (solver.trunk_stretch); the real horse at ×2 used 0.07-0.11
+HELD_SIZE_BOUNDS = (-0.2, 0.2)      # a ruled held region's size − 1, from its rule's similarity (solver.ruled_shape)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -133,11 +136,12 @@ class StepSolution:
     feet: FootContact | None = field(default=None, repr=False)      # the step's foot contact (posture keep)
     trunk_stretch: float | None = None                              # δ, when solver.trunk_stretch is on
     limb_thickness: float | None = None                             # κ, when solver.limb_thickness is on
+    sizes: dict[str, float] = field(default_factory=dict)           # each region held at its rule's size: its size − 1
 
     @property
     def variables(self) -> np.ndarray:
         extra = [value for value in (self.trunk_stretch, self.limb_thickness) if value is not None]
-        return np.array([self.scale, self.alpha0, *self.alphas.values(), *extra])
+        return np.array([self.scale, self.alpha0, *self.alphas.values(), *extra, *self.sizes.values()])
 
     def as_dict(self) -> dict:
         return {
@@ -146,6 +150,7 @@ class StepSolution:
             "alphas": {key: float(value) for key, value in self.alphas.items()},
             "trunk_stretch": None if self.trunk_stretch is None else float(self.trunk_stretch),
             "limb_thickness": None if self.limb_thickness is None else float(self.limb_thickness),
+            "sizes": {key: float(value) for key, value in self.sizes.items()},
             "energy": float(self.energy),
             "residuals": {key: float(value) for key, value in self.residuals.items()},
             "evaluations": int(self.evaluations),
@@ -249,7 +254,9 @@ def solve_step(
     """
     settings = ruleset.solver
     measure = measure or cached_measure(registry)
-    regions = tuple(ruleset.regions) + tuple(extra_regions)
+    # a region held at its rule's size has a size variable instead of its α_j (its shape is held)
+    ruled = held.ruled if held is not None else ()
+    regions = tuple(region for region in tuple(ruleset.regions) + tuple(extra_regions) if region not in ruled)
     step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
                             detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale,
                             trunk_stretch=trunk_stretch, limb_thickness=limb_thickness)
@@ -259,9 +266,11 @@ def solve_step(
     count = step.variable_count
     stretched, thickened = step.trunk_gate is not None, step.limb_field is not None
     lower = np.array([settings.scale_bounds[0], *[settings.alpha_bounds[0]] * (1 + len(regions)),
-                      *[TRUNK_STRETCH_BOUNDS[0]] * stretched, *[LIMB_THICKNESS_BOUNDS[0]] * thickened], dtype=float)
+                      *[TRUNK_STRETCH_BOUNDS[0]] * stretched, *[LIMB_THICKNESS_BOUNDS[0]] * thickened,
+                      *[HELD_SIZE_BOUNDS[0]] * len(ruled)], dtype=float)
     upper = np.array([settings.scale_bounds[1], *[settings.alpha_bounds[1]] * (1 + len(regions)),
-                      *[TRUNK_STRETCH_BOUNDS[1]] * stretched, *[LIMB_THICKNESS_BOUNDS[1]] * thickened], dtype=float)
+                      *[TRUNK_STRETCH_BOUNDS[1]] * stretched, *[LIMB_THICKNESS_BOUNDS[1]] * thickened,
+                      *[HELD_SIZE_BOUNDS[1]] * len(ruled)], dtype=float)
     isometric = np.zeros(count)
     isometric[0] = mass_ratio ** (1.0 / 3.0)                          # isometric: M ∝ s³
     isometric = np.clip(isometric, lower, upper)
@@ -315,7 +324,8 @@ def solve_step(
         jacobian=jacobian,
         feet=step.feet,
         trunk_stretch=float(best.variables[2 + len(regions)]) if stretched else None,
-        limb_thickness=float(best.variables[-1]) if thickened else None,
+        limb_thickness=float(best.variables[2 + len(regions) + stretched]) if thickened else None,
+        sizes={region: float(value) for region, value in zip(ruled, best.variables[count - len(ruled):])},
     )
 
 

@@ -120,14 +120,20 @@ class StepTransform:
                    float(held_scale), trunk_gate, limb_field)
 
     @property
+    def sized(self) -> tuple[str, ...]:
+        """The regions held at their rule's size, each with a size variable (solve/held_regions.py)."""
+        return self.held.ruled if self.held is not None else ()
+
+    @property
     def variable_count(self) -> int:
-        """(s, α_0, one α_j per region[, δ the trunk's stretch][, κ the limbs' thickness])."""
-        return 2 + len(self.regions) + (self.trunk_gate is not None) + (self.limb_field is not None)
+        """(s, α_0, one α_j per region[, δ the trunk's stretch][, κ the limbs' thickness], one size
+        per region held at its rule's size)."""
+        return 2 + len(self.regions) + (self.trunk_gate is not None) + (self.limb_field is not None) + len(self.sized)
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k[, δ][, κ])`` (Eq. 9 with detail kept, the trunk
-        stretched by δ, the limbs thickened by κ; then the feet put back; then the held open
-        regions given their input shape)."""
+        """Vertices for ``(s, α_0, α_1 … α_k[, δ][, κ][, sizes])`` (Eq. 9 with detail kept, the
+        trunk stretched by δ, the limbs thickened by κ; then the feet put back; then the held
+        regions given their input shape, a ruled one at its size)."""
         count = len(self.regions)
         scale, alpha0 = float(variables[0]), float(variables[1])
         alphas = [float(a) for a in variables[2:2 + count]]
@@ -150,7 +156,12 @@ class StepTransform:
         if self.feet is not None:
             vertices = self.feet.apply(vertices, scale)
         # last: the feet's shift is harmonic over the whole body and would shear a held part
-        return vertices if self.held is None else self.held.apply(vertices, self.held_scale)
+        return vertices if self.held is None else self.held.apply(vertices, self.held_scale, self.sizes(variables))
+
+    def sizes(self, variables: np.ndarray) -> dict[str, float]:
+        """Each region held at its rule's size: 1 + its size variable (the last variables)."""
+        return {region: 1.0 + float(value) for region, value in
+                zip(self.sized, variables[len(variables) - len(self.sized):])}
 
     def body_at(self, variables: np.ndarray) -> Body:
         from allorules.measure.parts import carry_fields
