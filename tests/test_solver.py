@@ -210,8 +210,8 @@ def test_step_does_not_depend_on_units_or_place(animal, registry):
 def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else(animal, registry):
     """κ (solver.limb_thickness) moves only the limbs, across their centre lines: at κ = 0.2 a leg's
     girth at two thirds of its length grows by about 20 % of Eq. 9's while its length stays, the
-    torso and head stay put, and κ = 0 is Eq. 9 bit for bit; a thicker leg carries the same mass at
-    a lower peak stress, the lever the stress constraint needs."""
+    torso, the head and the feet stay put, and κ = 0 is Eq. 9 bit for bit; a thicker leg carries
+    the same mass at a lower peak stress, the lever the stress constraint needs."""
     from allorules.measure.limbs import limb_sections
     from allorules.measure.parts import carry_fields
     from allorules.solve.limb_thickness import thickening_field
@@ -234,13 +234,20 @@ def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else
     size = np.ptp(body.vertices, axis=0).max()
     torso = body.region_mask("chest") | body.region_mask("abdomen") | body.region_mask("head")
     assert np.median(moved[torso]) < 2e-3 * size < np.median(moved[limbs])
+    feet = np.zeros(len(body.vertices), dtype=bool)          # the last tenth of every leg
+    for region in ("forelimbs", "hindlimbs"):
+        for leg in limb_sections(body, region):
+            feet[leg.mesh.vertex_index[leg.offsets_across()[1] > 0.92]] = True
+    assert feet.any() and np.median(moved[feet]) < 0.2 * np.median(moved[limbs & ~feet])
     for region in ("forelimbs", "hindlimbs"):
         for leg_before, leg_after in zip(limb_sections(before, region), limb_sections(after, region)):
             girth = leg_after.section_at(0.66).girth / leg_before.section_at(0.66).girth
             assert 1.14 < girth < 1.24, (region, girth)
             assert abs(leg_after.length / leg_before.length - 1) < 0.02
+    # the generated horse's load-bearing band is at 16 % of its foreleg, where κ is still fading in
+    # (weight 0.6): stress × 0.80 at κ = 0.2
     gauge = StressGauge.choose(body)
-    assert gauge.stress(after) < 0.8 * gauge.stress(before)
+    assert gauge.stress(after) < 0.85 * gauge.stress(before)
 
 
 def test_a_step_with_the_limbs_thickness_meets_every_target_and_reports_it(animal, registry):
