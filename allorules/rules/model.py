@@ -69,7 +69,7 @@ class SolverSettings:
     posture: str = "keep"           # legs upright, feet on the ground; "upright": legs only; "free" (allorules.solve.posture)
     detail_cutoff: float | None = None   # Eq. 9 on the base only, detail kept (power_laws.DetailLayer); None: every mode
     trunk_stretch: str = "when-needed"   # the trunk's length as one more variable: "on", "off", or "when-needed" (TRUNK_STRETCH)
-    limb_thickness: str = "on"           # the limbs' thickness as one more variable: "on", "off", or "when-needed" (LIMB_THICKNESS)
+    limb_thickness: str = "when-needed"  # the limbs' thickness as one more variable: "on", "off", or "when-needed" (LIMB_THICKNESS)
     ruled_shape: str = "hold"            # a head sized by its rule keeps its shape; "reshape": Eq. 9's α (RULED_SHAPES)
 
 
