@@ -289,7 +289,10 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     """A ruleset run, and what is tried when it misses with its open regions held by their shape
     (the default), in this order:
 
-    1. with ``solver.trunk_stretch: when-needed`` (the default) and the per-axis transform, the run
+    1. with ``solver.limb_thickness: when-needed`` (the default), the run is made again with κ, the
+       limbs' thickness, as one more variable (:mod:`allorules.solve.limb_thickness`), kept if it
+       converges and kept on for the tries after it (the pig 383 and the donkey 385 at ×2); then
+       with ``solver.trunk_stretch: when-needed`` (the default) and the per-axis transform, the run
        is made again with δ, the trunk's stretch along the body, as one more variable, and kept
        if it converges (which asks the trunk's length exponent to stay within
        ``TRUNK_LENGTH_TOLERANCE`` of isometric; a warning says how much longer it grew). The rules can ask
