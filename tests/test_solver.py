@@ -67,6 +67,20 @@ def test_identity_and_uniform_scaling(animal, registry):
     assert moved[head].mean() > 1.3 * moved[hindlimbs].mean()
 
 
+def _with_one_more_variable(animal, registry, **option):
+    """The step's transform with and without one more variable (``option``), and a point of the
+    paper's variables; the extra variable at 0 is the paper's transform bit for bit."""
+    body, basis = animal
+    regions = load_ruleset("quadruped", registry).regions
+    plain = StepTransform.of(body, basis, regions)
+    step = StepTransform.of(body, basis, regions, **option)
+    assert step.variable_count == plain.variable_count + 1
+    variables = np.zeros(plain.variable_count)
+    variables[:3] = 1.02, -0.01, 0.1
+    assert np.array_equal(step.vertices(np.append(variables, 0.0)), plain.vertices(variables))
+    return body, plain, step, variables
+
+
 def test_the_trunk_stretch_lengthens_the_trunk_along_the_body_only(animal, registry):
     """δ (solver.trunk_stretch) changes the forward coefficients alone: every vertex moves along the
     animal's forward axis only (its height and width untouched), δ = 0 is the paper's transform bit
@@ -74,14 +88,8 @@ def test_the_trunk_stretch_lengthens_the_trunk_along_the_body_only(animal, regis
     9's α cannot do that: it hardly moves the modes near |u| = 1, which carry a region's extent."""
     from allorules.spectral.power_laws import stretch_first_axis
 
-    body, basis = animal
-    regions = load_ruleset("quadruped", registry).regions
-    plain = StepTransform.of(body, basis, regions)
-    step = StepTransform.of(body, basis, regions, trunk_stretch=True)
-    assert step.variable_count == plain.variable_count + 1 and step.trunk_gate is not None
-    variables = np.zeros(plain.variable_count)
-    variables[:3] = 1.02, -0.01, 0.1
-    assert np.array_equal(step.vertices(np.append(variables, 0.0)), plain.vertices(variables))
+    body, plain, step, variables = _with_one_more_variable(animal, registry, trunk_stretch=True)
+    assert step.trunk_gate is not None
     stretched = step.vertices(np.append(variables, 0.2))
     moved = stretched - plain.vertices(variables)
     forward, up, side = step.axes
@@ -98,7 +106,7 @@ def test_the_trunk_stretch_lengthens_the_trunk_along_the_body_only(animal, regis
     head = extent(stretched, "head") / extent(before, "head")
     assert trunk > 1.05 and trunk - 1 > 2 * (head - 1)
     with pytest.raises(ValueError, match="per-axis"):
-        StepTransform.of(body, basis, regions, form="per-mode", trunk_stretch=True)
+        StepTransform.of(body, plain.basis, plain.regions, form="per-mode", trunk_stretch=True)
     assert np.array_equal(stretch_first_axis(plain.u, step.trunk_gate, 0.0), plain.u)
 
 
@@ -216,14 +224,8 @@ def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else
     from allorules.measure.parts import carry_fields
     from allorules.solve.limb_thickness import thickening_field
 
-    body, basis = animal
-    regions = load_ruleset("quadruped", registry).regions
-    plain = StepTransform.of(body, basis, regions)
-    step = StepTransform.of(body, basis, regions, limb_thickness=True)
-    assert step.variable_count == plain.variable_count + 1 and step.limb_field is not None
-    variables = np.zeros(plain.variable_count)
-    variables[:3] = 1.02, -0.01, 0.1
-    assert np.array_equal(step.vertices(np.append(variables, 0.0)), plain.vertices(variables))
+    body, plain, step, variables = _with_one_more_variable(animal, registry, limb_thickness=True)
+    assert step.limb_field is not None
 
     field = thickening_field(body)
     limbs = body.region_mask("forelimbs") | body.region_mask("hindlimbs")
