@@ -1,5 +1,5 @@
 """Geometry of triangle meshes as plain numpy: areas, normals, enclosed volume, flipped faces,
-plane sections.
+plane sections; and the smoothstep every blend along a surface uses.
 
 One home for each of these operations; every stage (repair, the Laplacian, measurement, export,
 the generated quadruped) calls them from here.
@@ -7,6 +7,13 @@ the generated quadruped) calls them from here.
 from __future__ import annotations
 
 import numpy as np
+
+
+def smoothstep(ramp: np.ndarray) -> np.ndarray:
+    """3r² − 2r³ of ``ramp`` clipped to [0, 1]: 0 below 0, 1 above 1, flat at both ends (the blend
+    of posture's turns, the held regions' zones, the limbs' thickening, the generated poses)."""
+    ramp = np.clip(ramp, 0.0, 1.0)
+    return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from allorules.mesh.geometry import smoothstep
+
 LEGS = ("fore-left", "fore-right", "hind-left", "hind-right")
 
 
@@ -74,16 +76,12 @@ def _turn(points, pivot, angle):
     return np.einsum("nij,nj->ni", _rotation_about_z(angle), points - pivot) + pivot
 
 
-def _smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
 
 def _near_line(points, point, direction, radius, blend):
     """1 within ``radius`` of the line through ``point`` along ``direction``, 0 beyond radius + blend."""
     offset = points - point
     across = offset - np.outer(offset @ direction, direction)
-    return 1.0 - _smoothstep((np.linalg.norm(across, axis=1) - radius) / blend)
+    return 1.0 - smoothstep((np.linalg.norm(across, axis=1) - radius) / blend)
 
 
 def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, region_names) -> np.ndarray:
@@ -110,16 +108,16 @@ def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, 
             if swing == 0.0 and knee == 0.0:
                 continue
             near = np.hypot(rest[:, 0] - x, rest[:, 2] - z)
-            lateral = 1.0 - _smoothstep((near - reach) / r_top)            # this leg's column
+            lateral = 1.0 - smoothstep((near - reach) / r_top)            # this leg's column
             if knee:
                 knee_y = 0.5 * saddle
                 knee_radius = 0.5 * (r_top + r_bottom)
-                below = 1.0 - _smoothstep((rest[:, 1] - (knee_y - knee_radius)) / (2 * knee_radius))
+                below = 1.0 - smoothstep((rest[:, 1] - (knee_y - knee_radius)) / (2 * knee_radius))
                 weight = lateral * below
                 # fore knees (carpus) fold the foot back, hind knees (hock) forward: one sign here
                 moved = _turn(moved, np.array([x, knee_y, z]), -knee * weight)
             if swing:
-                below = 1.0 - _smoothstep((rest[:, 1] - saddle) / (2 * r_top))
+                below = 1.0 - smoothstep((rest[:, 1] - saddle) / (2 * r_top))
                 weight = lateral * below
                 # a forward swing moves the foot to +X: turn by −angle about +Z at the pivot
                 moved = _turn(moved, np.array([x, saddle, z]), -swing * weight * _forward_sign())
@@ -131,7 +129,7 @@ def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, 
             cut = cuts[name]
             along = (rest - cut.point) @ cut.normal
             part = np.where(front, 1.0, _near_line(rest, cut.point, cut.normal, radius, 2 * p.limb_blend + radius))
-            weight = _smoothstep((along + radius) / (2 * radius)) * part
+            weight = smoothstep((along + radius) / (2 * radius)) * part
             moved = _turn(moved, cut.point, math.radians(angle) * weight * _up_sign(cut.normal))
     if pose.tail or pose.tail_curl:
         moved = _pose_tail(layout, rest, moved, pose, named["tail"])
@@ -161,7 +159,7 @@ def _pose_tail(layout, rest, moved, pose: Pose, labels_tail) -> np.ndarray:
     offset = rest - root
     s = offset @ direction
     part = np.where(labels_tail, 1.0, _near_line(rest, root, direction, p.tail_radius, 2 * p.limb_blend + p.tail_radius))
-    weight = _smoothstep((s + p.tail_radius) / (2 * p.tail_radius)) * part
+    weight = smoothstep((s + p.tail_radius) / (2 * p.tail_radius)) * part
     result = moved.copy()
     tail = weight > 0
     if pose.tail_curl:

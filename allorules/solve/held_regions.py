@@ -45,7 +45,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from allorules.body import Body
 from allorules.measure.features import similarity_fit
-from allorules.mesh.geometry import vertex_areas
+from allorules.mesh.geometry import smoothstep, vertex_areas
 from allorules.mesh.topology import (
     vertex_adjacency,
     vertex_components,
@@ -61,10 +61,6 @@ ROOT_REGIONS = ("chest", "abdomen")   # the torso: what a held part's near openi
 
 __all__ = ["BlendZone", "HeldPart", "HeldRegions", "hold_regions", "rule_held_regions"]
 
-
-def _smoothstep(ramp: np.ndarray) -> np.ndarray:
-    ramp = np.clip(ramp, 0.0, 1.0)
-    return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
 @dataclass(frozen=True)
@@ -98,7 +94,7 @@ class BlendZone:
         lookup = np.full(len(side), -1)
         lookup[opening] = np.arange(len(opening))
         vertices = index[inside]
-        return cls(vertices, lookup[index[nearest[inside]]], 1.0 - _smoothstep(distance[inside] / width))
+        return cls(vertices, lookup[index[nearest[inside]]], 1.0 - smoothstep(distance[inside] / width))
 
     def without(self, kept: np.ndarray) -> "BlendZone":
         """The zone less the body vertices ``kept`` (another held part's, which must stay exact)."""

@@ -28,15 +28,12 @@ import numpy as np
 from allorules.body import Body
 from allorules.measure.limbs import limb_sections
 from allorules.measure.parts import LIMB_REGIONS
+from allorules.mesh.geometry import smoothstep
 
 LIMB_THICKNESS_BOUNDS = (-0.3, 0.3)   # κ per step; the real horse at ×2 used 0.07-0.21, the pig 383 0.08-0.13
 JUNCTION_FADE = 0.3                   # share of the limb's length over which the thickening fades in
 FOOT = (0.75, 0.9)                    # ... and fades out again: the foot below keeps its shape
 
-
-def _smoothstep(ramp: np.ndarray) -> np.ndarray:
-    ramp = np.clip(ramp, 0.0, 1.0)
-    return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
 def thickening_field(body: Body) -> np.ndarray:
@@ -51,6 +48,6 @@ def thickening_field(body: Body) -> np.ndarray:
             continue
         for limb in limb_sections(body, region):
             offsets, along = limb.offsets_across()
-            weight = _smoothstep(along / JUNCTION_FADE) * (1.0 - _smoothstep((along - FOOT[0]) / (FOOT[1] - FOOT[0])))
+            weight = smoothstep(along / JUNCTION_FADE) * (1.0 - smoothstep((along - FOOT[0]) / (FOOT[1] - FOOT[0])))
             field[limb.mesh.vertex_index] = weight[:, None] * offsets
     return field

@@ -34,6 +34,7 @@ import scipy.sparse.csgraph as csgraph
 from scipy.sparse.linalg import splu
 
 from allorules.body import Body
+from allorules.mesh.geometry import smoothstep
 from allorules.mesh.topology import vertex_graph
 
 POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
@@ -57,10 +58,6 @@ def _limb_pairs(reference: Body, moved: Body) -> list[tuple]:
     limbs = _limbs(reference)        # before carrying: the same limbs
     return list(zip(limbs, _limbs(carry_fields(reference, moved.with_vertices(moved.vertices)))))
 
-
-def _smoothstep(ramp: np.ndarray) -> np.ndarray:
-    ramp = np.clip(ramp, 0.0, 1.0)
-    return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -211,7 +208,7 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
         blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
         if blend_level <= lowest:
             continue
-        weight = _smoothstep((before.field - lowest) / (blend_level - lowest))
+        weight = smoothstep((before.field - lowest) / (blend_level - lowest))
         turned = after.junction + (moved.vertices[index] - after.junction) @ rotation.T
         moves[-1] = (index, weight[:, None] * (turned - moved.vertices[index]))
     return moved.vertices + _mean_over_limbs(len(moved.vertices), moves)

@@ -309,12 +309,13 @@ def solve_step(
         elif not energy.done():
             status = "maxeval reached"
     best = energy.best
+    named = step.unpack(best.variables)
     failed = sum(1 for evaluation in energy.evaluations if evaluation.failure)
     log.debug("step r=%.4f: %s after %d evaluations, energy %.3g", mass_ratio, status, len(energy.evaluations), best.energy)
     return StepSolution(
-        scale=float(best.variables[0]),
-        alpha0=float(best.variables[1]),
-        alphas={region: float(value) for region, value in zip(regions, best.variables[2:])},
+        scale=named.scale,
+        alpha0=named.alpha0,
+        alphas=dict(zip(regions, named.alphas)),
         energy=float(best.energy),
         residuals=dict(best.residuals),
         evaluations=len(energy.evaluations),
@@ -323,9 +324,9 @@ def solve_step(
         failed_evaluations=failed,
         jacobian=jacobian,
         feet=step.feet,
-        trunk_stretch=float(best.variables[2 + len(regions)]) if stretched else None,
-        limb_thickness=float(best.variables[2 + len(regions) + stretched]) if thickened else None,
-        sizes={region: float(value) for region, value in zip(ruled, best.variables[count - len(ruled):])},
+        trunk_stretch=named.trunk_stretch,
+        limb_thickness=named.limb_thickness,
+        sizes=named.sizes,
     )
 
 

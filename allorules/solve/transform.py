@@ -56,6 +56,18 @@ def anatomical_axes(body: Body) -> np.ndarray:
     return np.array([forward, up, np.cross(forward, up)])
 
 
+@dataclass(frozen=True)
+class StepVariables:
+    """One point of a step's variables by name (:meth:`StepTransform.unpack`)."""
+
+    scale: float                      # s
+    alpha0: float                     # α_0
+    alphas: tuple[float, ...]         # α_j, in the order of StepTransform.regions
+    trunk_stretch: float | None       # δ, when the trunk's stretch is on
+    limb_thickness: float | None      # κ, when the limbs' thickness is on
+    sizes: dict[str, float]           # σ (size − 1) of each region held at its rule's size
+
+
 @dataclass
 class StepTransform:
     """Everything Eq. 9 needs on the step's start body: coefficients, c, the regions' u_j.
@@ -130,25 +142,34 @@ class StepTransform:
         per region held at its rule's size)."""
         return 2 + len(self.regions) + (self.trunk_gate is not None) + (self.limb_field is not None) + len(self.sized)
 
-    def vertices(self, variables: np.ndarray) -> np.ndarray:
-        """Vertices for ``(s, α_0, α_1 … α_k[, δ][, κ][, sizes])`` (Eq. 9 with detail kept, the
-        trunk stretched by δ, the limbs thickened by κ; then the feet put back; then the held
-        regions given their input shape, a ruled one at its size)."""
+    def unpack(self, variables: np.ndarray) -> "StepVariables":
+        """The variable vector by name: ``(s, α_0, α_1 … α_k[, δ][, κ][, σ per ruled region])``, δ
+        and κ only when switched on, one σ per region held at its rule's size (:attr:`sized`)."""
+        values = [float(value) for value in variables]
         count = len(self.regions)
-        scale, alpha0 = float(variables[0]), float(variables[1])
-        alphas = [float(a) for a in variables[2:2 + count]]
-        extra = iter(float(value) for value in variables[2 + count:])   # δ, κ: those switched on, in order
-        u_new = multi_region_power_law(self.u, self.region_us, alphas, alpha0, scale)
-        if self.trunk_gate is not None:
-            u_new = stretch_first_axis(u_new, self.trunk_gate, next(extra))
+        extra = iter(values[2 + count:])
+        stretch = next(extra) if self.trunk_gate is not None else None
+        thickness = next(extra) if self.limb_field is not None else None
+        return StepVariables(values[0], values[1], tuple(values[2:2 + count]), stretch, thickness,
+                             dict(zip(self.sized, extra)))
+
+    def vertices(self, variables: np.ndarray) -> np.ndarray:
+        """Vertices for the variables (:meth:`unpack`): Eq. 9 with detail kept, the trunk
+        stretched by δ, the limbs thickened by κ; then the feet put back; then the held regions
+        given their input shape, a ruled one at its size × (1 + σ)."""
+        named = self.unpack(variables)
+        scale = named.scale
+        u_new = multi_region_power_law(self.u, self.region_us, list(named.alphas), named.alpha0, scale)
+        if named.trunk_stretch is not None:
+            u_new = stretch_first_axis(u_new, self.trunk_gate, named.trunk_stretch)
         if self.form == "per-axis":
             # x̃' = x̃ + c·(u' − u), the change taken in the animal's axes and turned back to the
             # mesh's; exactly x̃ where u' = u
             new_coefficients = self.coefficients + (self.c * (u_new - self.u)) @ self.axes
         else:
             new_coefficients = from_mode_magnitudes(self.coefficients, self.u, u_new)
-        if self.limb_field is not None:   # x̃' += κ·s·D̃ (solve/limb_thickness.py)
-            new_coefficients = new_coefficients + next(extra) * scale * self.limb_field
+        if named.limb_thickness is not None:   # x̃' += κ·s·D̃ (solve/limb_thickness.py)
+            new_coefficients = new_coefficients + named.limb_thickness * scale * self.limb_field
         if self.detail is not None:
             vertices = self.detail.apply(new_coefficients)
         else:
@@ -156,12 +177,9 @@ class StepTransform:
         if self.feet is not None:
             vertices = self.feet.apply(vertices, scale)
         # last: the feet's shift is harmonic over the whole body and would shear a held part
-        return vertices if self.held is None else self.held.apply(vertices, self.held_scale, self.sizes(variables))
-
-    def sizes(self, variables: np.ndarray) -> dict[str, float]:
-        """Each region held at its rule's size: 1 + its size variable (the last variables)."""
-        return {region: 1.0 + float(value) for region, value in
-                zip(self.sized, variables[len(variables) - len(self.sized):])}
+        if self.held is None:
+            return vertices
+        return self.held.apply(vertices, self.held_scale, {region: 1.0 + size for region, size in named.sizes.items()})
 
     def body_at(self, variables: np.ndarray) -> Body:
         from allorules.measure.parts import carry_fields
