@@ -682,6 +682,7 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     near_forelimb = np.unique(graph[forelimb].indices)
     near_forelimb = near_forelimb[finite[near_forelimb]]
     span = float(distance[near_forelimb].min()) if len(near_forelimb) else float(distance[finite].max())
+    shoulders = vertices[near_forelimb]   # where the forelimbs meet the body
     levels = np.linspace(0, span, PROFILE_LEVELS + 2)[1:-1]
     step = levels[1] - levels[0]
     field = np.where(finite, distance, np.inf)
@@ -717,10 +718,10 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
         if not np.linalg.norm(neck_direction) > 0:
             continue
         neck_direction = neck_direction / np.linalg.norm(neck_direction)
-        neck = _follow_neck(vertices, faces, adjacency, centroids[bend], neck_direction, step, span)
+        neck = _follow_neck(vertices, faces, adjacency, centroids[bend], neck_direction, step, span, shoulders)
         if neck is None:   # the plane at the bend may cut the back of the head too: start a little down the neck
             later = min(bend + w // 2, len(centroids) - 1)
-            neck = _follow_neck(vertices, faces, adjacency, centroids[later], neck_direction, step, span)
+            neck = _follow_neck(vertices, faces, adjacency, centroids[later], neck_direction, step, span, shoulders)
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
@@ -739,7 +740,10 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     return (throat, -neck_direction), (base_point, -base_direction)
 
 
-def _follow_neck(vertices, faces, adjacency, start, direction, step, span):
+SHOULDER_SHARE = 0.25   # a neck base with more of the forelimbs' junction than this on its head side reaches over the shoulders
+
+
+def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoulders=None):
     """Follow a tube from ``start`` along ``direction``: (base point, base direction, length,
     narrowing) of the neck it finds, or None; length and narrowing (the distance to the
     narrowest section) in radii of the narrowest section.
@@ -751,6 +755,13 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span):
     into the chest. r changes slowly along the neck (its taper) and fast where the sections
     enter the chest: the base is the knee of r(t), past the narrowest section, of r's running
     maximum: the point farthest below the chord to its top (no threshold).
+
+    The neck ends where the forelimbs begin: when more than SHOULDER_SHARE of ``shoulders`` (the
+    points where the forelimbs meet the body) lie on the head's side of the base's section, the
+    neck has been followed over the shoulders into the chest (a pig's, a donkey's or a bull's thick
+    neck widens into the forequarters with no knee before them), and the knee is sought again
+    among the sections up to the first that has any of them on its head's side; where they show
+    none, the neck ends at that section.
     """
     point = start
     travelled, radii, centres, directions = [], [], [], []
@@ -775,6 +786,28 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span):
     if len(radii) < 3:
         return None
     radii, travelled = np.array(radii), np.array(travelled)
+    found = _neck_knee(radii, travelled)
+    if found is not None and shoulders is not None and len(shoulders):
+        ahead = np.array([float(np.mean((shoulders - centre) @ axis < 0)) for centre, axis in zip(centres, directions)])
+        clear = int(np.argmax(ahead > 0))   # the first section with a shoulder point on the head's side
+        if ahead[found[0]] > SHOULDER_SHARE and clear > 0:
+            found = _neck_knee(radii[:clear + 1], travelled[:clear + 1]) or (clear, int(np.argmin(radii[:clear + 1])))
+    if found is None:
+        return None
+    base, narrowest = found
+    # The throat: the narrowest section, when it lies in the head's half of the neck (a neck
+    # narrowest just before the chest, like a lion's under its mane, has no throat: the bend
+    # itself is then the head's end).
+    throat = centres[narrowest] if 2 * travelled[narrowest] <= travelled[base] else centres[0]
+    return (centres[base], directions[base], travelled[base] / radii[narrowest],
+            travelled[narrowest] / radii[narrowest], throat)
+
+
+def _neck_knee(radii: np.ndarray, travelled: np.ndarray) -> tuple[int, int] | None:
+    """(base, narrowest): indices of the neck's base (the knee of the section radius's running
+    maximum past the narrowest section) and of its narrowest section, or None (no knee)."""
+    if len(radii) < 3:
+        return None
     narrowest = int(np.argmin(radii[:int(np.argmax(radii)) + 1]))   # the neck: before the widest (chest)
     # Past the narrowest section, r's running maximum (a dip where a plane slips between two
     # bulges is not the neck again); its knee up to where it first reaches its top.
@@ -787,12 +820,7 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span):
     base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
     if radii[narrowest] <= 0:
         return None
-    # The throat: the narrowest section, when it lies in the head's half of the neck (a neck
-    # narrowest just before the chest, like a lion's under its mane, has no throat: the bend
-    # itself is then the head's end).
-    throat = centres[narrowest] if 2 * travelled[narrowest] <= travelled[base] else centres[0]
-    return (centres[base], directions[base], travelled[base] / radii[narrowest],
-            travelled[narrowest] / radii[narrowest], throat)
+    return base, narrowest
 
 
 def _section_loop(vertices, faces, adjacency, point, normal):
