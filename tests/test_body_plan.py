@@ -228,6 +228,45 @@ def test_the_tail_is_its_own_region_and_folds_into_the_abdomen(posed):
     assert set(kept.labelling.confidence) == {"feet", "fore-hind pairs", "head-tail"}
 
 
+def test_a_tail_is_the_tube_its_rings_follow_and_a_bump_is_none(posed):
+    """The tail's fallback when what its tip reaches runs on into the body (a tail hanging against
+    the rump): the rings from the tip while they keep the tail's girth. On the generated dog its
+    tube is its tail; a point on the back ends no tube."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from allorules.mesh.topology import vertex_graph
+    from allorules.segment.labeller import _tube
+
+    animal = posed("dog", "stand")
+    graph = vertex_graph(animal.vertices, animal.faces)
+    mass = vertex_areas(animal.vertices, animal.faces)
+    tail = animal.labels == REGION_NAMES.index("tail")
+    centre = np.average(animal.vertices, axis=0, weights=mass)
+    tip = int(np.flatnonzero(tail)[np.argmax(np.linalg.norm(animal.vertices[tail] - centre, axis=1))])
+    field = dijkstra(graph, indices=tip)
+    tube = _tube(animal.vertices, animal.faces, graph, tip, field, float(np.percentile(field, 50)))
+    assert tube is not None
+    assert mass[tube & tail].sum() > 0.8 * mass[tail].sum()
+    assert mass[tube & ~tail].sum() < 0.25 * mass[tail].sum()
+    back = int(np.argmax(np.where(animal.labels == REGION_NAMES.index("chest"), animal.vertices[:, 1], -np.inf)))
+    field = dijkstra(graph, indices=back)
+    assert _tube(animal.vertices, animal.faces, graph, back, field, float(np.percentile(field, 50))) is None
+
+
+@pytest.mark.shared_meshes
+def test_the_donkeys_tail_hanging_against_its_rump_is_its_own_region():
+    """PSB 385: what the tail's tip reaches ran on over the rump (54 % of the torso), so the tail
+    was left in the abdomen and reshaped with it (curled up short at x2); its tube is the tail."""
+    prepared, _ = _real("385.off")
+    labelled = label_quadruped(Body(prepared.vertices, prepared.faces))
+    mass = vertex_areas(prepared.vertices, prepared.faces)
+    tail = labelled.region_mask("tail")
+    assert 0.003 < mass[tail].sum() / mass.sum() < 0.02
+    # it hangs behind the hind legs, its tip the lowest point of the tail end
+    lowest = prepared.vertices[tail] @ labelled.frame.up
+    assert lowest.min() < (prepared.vertices[labelled.region_mask("abdomen")] @ labelled.frame.up).min()
+
+
 def test_labels_files_keep_every_region_and_the_labelling(tmp_path, posed):
     animal = posed("dog", "stand")
     body = Body(animal.vertices, animal.faces)

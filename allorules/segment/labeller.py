@@ -601,9 +601,48 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
         region &= np.isin(labels, within)
         if index == trunk_index:
             region &= head
+        if largest is not None and mass[region].sum() > largest:
+            # what the tip reaches below its root ran on into the body (a tail hanging against the
+            # rump, geodesically near all of it): the tail is its tube alone, if it has one
+            region = _tube(vertices, faces, graph, tip, field, float(field[girdle])) if index == tail_index else None
+            if region is None:
+                continue
+            region &= np.isin(labels, within)
         if not region.any() or (largest is not None and mass[region].sum() > largest):
             continue
         labels[region] = index
+
+
+TUBE_GROWTH = 2.0   # a tube ends where its rings grow to this many times its narrowest ring's radius
+
+
+def _tube(vertices, faces, graph, tip, field, span) -> np.ndarray | None:
+    """The tube that ends at ``tip`` (a mask), or None where the tip ends no tube.
+
+    The rings of the geodesic distance ``field`` from the tip: past the tip's cap a tube's rings
+    lie farther from the tip than twice their radius (on a cap, a bump or a flat surface they do
+    not). The tube is the tip's side of the first ring, past the narrowest such ring (before the
+    widest), whose radius is TUBE_GROWTH times the narrowest's; it is at least TRUNK_LENGTH of
+    its radii long. Tighter than :func:`_follow_tip`'s core where the rings spread onto the body
+    gradually (a tail hanging against the rump), and nothing for a bump (a cow's tailhead).
+    """
+    levels = np.linspace(0.0, span, LEG_RINGS + 1)[1:]
+    perimeter, _ = isocontour_profile(vertices, faces, field, levels)
+    radius = perimeter / (2 * np.pi)
+    widest = int(np.argmax(radius))
+    along = np.flatnonzero((levels[:widest + 1] > 2 * radius[:widest + 1]) & (radius[:widest + 1] > 0))
+    if not len(along):
+        return None
+    narrowest = int(along[np.argmin(radius[along])])
+    grown = np.flatnonzero(radius[narrowest:] > TUBE_GROWTH * radius[narrowest])
+    if not len(grown):
+        return None
+    end = levels[narrowest + int(grown[0]) - 1]
+    if end < TRUNK_LENGTH * radius[narrowest]:
+        return None
+    inside = field < end
+    parts = vertex_components(graph, inside)
+    return inside & (parts == parts[tip])
 
 
 def _beyond_loop(vertices, faces, graph, adjacency, point, normal, allowed, tip):
