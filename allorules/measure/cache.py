@@ -28,7 +28,7 @@ class Carried:
 
     limbs: dict[str, list["Limb"]] = field(default_factory=dict)            # by region
     skeletons: dict[str, list["Skeleton"]] = field(default_factory=dict)    # by region
-    chest_candidates: tuple[np.ndarray, str] | None = None   # the heart-girth levels and where cut ("part", "torso", "body")
+    chest_candidates: tuple[np.ndarray, str, float] | None = None   # the heart-girth levels, where cut ("part", "torso", "body"), the margin
 
 
 @dataclass
@@ -45,7 +45,7 @@ class Measured:
     skeletons: dict[str, list["Skeleton"]] = field(default_factory=dict)
     lengths: dict[str, float] = field(default_factory=dict)
     girths: dict[str, float] = field(default_factory=dict)
-    chest_candidates: tuple[np.ndarray, str] | None = None
+    chest_candidates: tuple[np.ndarray, str, float] | None = None
     peak_stress: dict[Any, float] = field(default_factory=dict)      # by section override (None: automatic)
     values: dict[tuple[str, str | None], float] = field(default_factory=dict)   # any registered measure, by (name, region)
     carried: Carried | None = None
