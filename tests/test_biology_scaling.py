@@ -148,10 +148,41 @@ def test_a_stretched_run_reports_its_trunk_and_is_refused_beyond_the_tolerance(a
     assert all(step.trunk_stretch is not None for step in result.steps)
     assert abs(result.trunk_length_exponent - 1 / 3) <= ruleset_run.TRUNK_LENGTH_TOLERANCE
     assert result.as_dict()["trunk_length_exponent"] == result.trunk_length_exponent
-    assert _run(animal, registry, quadruped, 2.0).trunk_length_exponent is None      # when-needed: not here
+    plain = _run(animal, registry, quadruped, 2.0)             # every run's trunk is checked
+    assert plain.converged and all(step.trunk_stretch is None for step in plain.steps)
+    assert abs(plain.trunk_length_exponent - 1 / 3) <= ruleset_run.TRUNK_LENGTH_TOLERANCE
     monkeypatch.setattr(ruleset_run, "TRUNK_LENGTH_TOLERANCE", abs(result.trunk_length_exponent - 1 / 3) / 2)
     refused = _run(animal, registry, stretched, 2.0)
     assert not refused.converged and any("trunk's length reached exponent" in message for message in refused.messages)
+
+
+def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, monkeypatch, tmp_path):
+    """Without the trunk's stretch Eq. 9 can still draw the trunk out: the bull 386 at x2 met every
+    rule with its trunk's length at exponent 0.6. Unless a rule measures a torso region's length, a
+    trunk beyond 1/3 ± TRUNK_LENGTH_TOLERANCE is not converged."""
+    from allorules.runs import ruleset_run
+
+    quadruped = load_ruleset("quadruped", registry)
+    plain = _run(animal, registry, quadruped, 2.0)
+    assert plain.converged
+    monkeypatch.setattr(ruleset_run, "TRUNK_LENGTH_TOLERANCE", abs(plain.trunk_length_exponent - 1 / 3) / 2)
+    refused = _run(animal, registry, quadruped, 2.0)
+    assert not refused.converged
+    assert any("no rule asks for it" in message for message in refused.messages), refused.messages
+    path = tmp_path / "long-chest.yaml"
+    path.write_text(textwrap.dedent("""\
+        name: long-chest
+        description: the chest's length has its own rule
+        extends: quadruped
+        rules:
+          - id: chest-length
+            region: chest
+            measure: length
+            exponent: 0.36
+            source: a rule on the trunk's length
+        """), encoding="utf-8")
+    ruled = _run(animal, registry, load_ruleset(str(path), registry), 2.0)
+    assert not any("trunk's length" in message for message in ruled.messages)
 
 
 def test_isometric_ruleset_is_uniform_scaling(animal, registry):

@@ -338,7 +338,7 @@ def test_chest_girth_is_the_largest_section_behind_the_forelimbs():
     body = torso_body()
     # the section behind the forelimb patch, clear of the rearmost point where it meets the chest by
     # the margin's share of the chest's length along the torso axis, is the largest there
-    from allorules.measure.girth import CHEST_LIMIT_MARGINS, torso_axis
+    from allorules.measure.girth import CHEST_LIMIT_MARGINS
 
     girth = region_girth(body, "chest")
     axis = torso_axis(body)
@@ -776,7 +776,7 @@ def test_heart_girth_is_measured_around_the_torso_when_the_chest_labels_are_ragg
     """Where the chest/abdomen labels zigzag (large faces of a low-poly mesh), no plane section of
     the chest alone closes behind the forelimbs (before: a MeasurementError); the same levels are
     then cut around the whole torso, which gives the clean chest's girth."""
-    from allorules.measure.girth import _forelimb_limit, chest_girth, torso_axis
+    from allorules.measure.girth import _forelimb_limit, chest_girth
 
     body = generate_quadruped("horse", vertices=2000).body()
     chest, abdomen = body.region_names.index("chest"), body.region_names.index("abdomen")
@@ -822,7 +822,7 @@ def test_heart_girth_when_the_chest_is_not_a_ring():
 def test_low_poly_dog_heart_girth_is_measured(shared_meshes):
     """The shared low-poly dog's chest/abdomen boundary crosses faces as long as a leg is thick:
     no section of its chest alone closes behind the forelimbs."""
-    from allorules.measure.girth import chest_girth, torso_axis
+    from allorules.measure.girth import chest_girth
 
     body = labelled_real_mesh(shared_meshes / "dog-lowpoly.obj")
     girth = chest_girth(body)
@@ -830,3 +830,15 @@ def test_low_poly_dog_heart_girth_is_measured(shared_meshes):
     abdomen = [loop.girth for loop in isocontour_loops(body.vertices, body.faces, body.vertices @ torso_axis(body),
                                                        np.median(body.vertices[body.region_mask("abdomen")] @ torso_axis(body)))]
     assert 0.5 * max(abdomen) < girth < 2.0 * max(abdomen)
+
+
+def test_trunk_length_runs_from_shoulder_to_buttock_along_the_torso():
+    """The torso (chest z < 3, abdomen below, down to the pole at -5.5) along its axis; a stretch
+    along the axis lengthens it by its factor, one across does not."""
+    from allorules.measure.length import trunk_length
+
+    framed = torso_body(frame=Frame(up=np.array([0.0, 1.0, 0.0]), forward=np.array([0.0, 0.0, 1.0])))
+    chest_end = framed.vertices[framed.region_mask("chest"), 2].max()
+    assert trunk_length(framed) == pytest.approx(chest_end + 5.5, rel=1e-9)
+    assert trunk_length(framed.with_vertices(framed.vertices * [1.0, 1.0, 1.5])) == pytest.approx(1.5 * trunk_length(framed))
+    assert trunk_length(framed.with_vertices(framed.vertices * [1.3, 1.3, 1.0])) == pytest.approx(trunk_length(framed))

@@ -12,6 +12,7 @@ from allorules.measure.limbs import FOOT_SHARE
 from allorules.measure.parts import (
     LIMB_REGIONS,
     SECTION_COUNT,
+    TORSO_REGIONS,
     _closed_fields,
     region_parts,
 )
@@ -53,3 +54,21 @@ def region_length(body: Body, region: str) -> float:
             raise MeasurementError(f"region {region!r} has no measurable length (its skeleton is a point)")
         cache[region] = length
     return cache[region]
+
+
+def trunk_length(body: Body) -> float:
+    """The trunk's length: the extent of the torso (chest and abdomen) along the torso axis, from
+    the point of the shoulder to the point of the buttock, as animal scientists measure body length.
+    (The regions' own skeletons run across a short, thick torso region as readily as along it: the
+    bull 386 drawn out to exponent 0.6 along its back measured 0.35 by them.)"""
+    from allorules.measure.girth import (
+        torso_axis,  # girth measures build on this module
+    )
+
+    torso = np.zeros(len(body.vertices), dtype=bool)
+    for region in TORSO_REGIONS:
+        if body.has_region(region):
+            torso |= body.region_mask(region)
+    if not torso.any():
+        raise MeasurementError("the body has no chest or abdomen region: its trunk's length is unknown")
+    return float(np.ptp(body.vertices[torso] @ torso_axis(body)))

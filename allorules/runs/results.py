@@ -165,7 +165,7 @@ class BiologyScalingResult(ScalingResult):
     posture_setting: str = "keep"    # solver.posture of the ruleset (allorules.solve.posture)
     warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
     open_regions: list = field(default_factory=list)    # OpenRegionOutcome per open region and measure
-    trunk_length_exponent: float | None = None   # with the trunk's stretch: the trunk's length over the run
+    trunk_length_exponent: float | None = None   # the trunk's length over the run (checked unless a rule measures it)
 
     def details(self) -> dict:
         return {

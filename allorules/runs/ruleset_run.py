@@ -45,6 +45,7 @@ import numpy as np
 
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
+from allorules.measure.length import trunk_length
 from allorules.measure.parts import TORSO_REGIONS
 from allorules.measure.quality import distortions, flipped_faces
 from allorules.measure.stress import StressGauge
@@ -307,24 +308,30 @@ def _worst_miss(misses: dict[str, float], allowed: dict[str, float]) -> float:
     return max(abs(math.log(misses[key])) / allowed[key] for key in allowed)
 
 
-def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body, measure) -> list[str]:
-    """With the trunk's stretch: the trunk's length exponent over the run (chest and abdomen along
-    their skeletons, into ``result``), and what is wrong with it (beyond TRUNK_LENGTH_TOLERANCE of 1/3,
-    or not measurable)."""
-    regions = [region for region in TORSO_REGIONS if initial.has_region(region)]
-    if not regions:                     # no trunk: nothing was stretched (solve/transform.py)
+def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body, ruleset, stretched: bool) -> list[str]:
+    """The trunk's length exponent over the run (:func:`allorules.measure.length.trunk_length`, into
+    ``result``), and what is wrong with it: beyond TRUNK_LENGTH_TOLERANCE of 1/3 where no rule
+    measures a torso region's length (or, with the trunk's stretch, in any case), or not measurable
+    with the stretch. Without the stretch Eq. 9 can still lengthen the trunk: the bull 386 at ×2
+    met every rule with a trunk grown at exponent 0.6, an animal no longer the same."""
+    if not any(initial.has_region(region) for region in TORSO_REGIONS):
+        return []                       # no trunk: nothing was stretched (solve/transform.py)
+    ruled = any(rule.measure == "length" and rule.region in TORSO_REGIONS for rule in ruleset.rules)
+    if ruled and not stretched:
         return []
     try:
-        before = sum(measure("length", initial, region) for region in regions)
-        after = sum(measure("length", final, region) for region in regions)
+        before, after = trunk_length(initial), trunk_length(final)
     except AllorulesError as error:
-        return [f"the trunk's length could not be measured to check the trunk's stretch: {error}"]
+        return [f"the trunk's length could not be measured to check the trunk's stretch: {error}"] if stretched else []
     exponent = math.log(after / before) / math.log(result.target_mass_ratio)
     result.trunk_length_exponent = exponent
-    if abs(exponent - 1.0 / 3.0) > TRUNK_LENGTH_TOLERANCE:
+    if abs(exponent - 1.0 / 3.0) <= TRUNK_LENGTH_TOLERANCE:
+        return []
+    if stretched:
         return [f"the trunk's length reached exponent {exponent:.3f} with the trunk's stretch, beyond "
                 f"{1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE} (solver.trunk_stretch)"]
-    return []
+    return [f"the trunk's length reached exponent {exponent:.3f}, beyond {1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE}, "
+            "and no rule asks for it: the animal came out " + ("stretched" if exponent > 1.0 / 3.0 else "shortened")]
 
 
 def _capped(ruleset):
@@ -440,8 +447,8 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
                 messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
-    if stretched and ratio != 1.0:
-        messages.extend(_check_trunk_length(result, initial, final, measure))
+    if ratio != 1.0:
+        messages.extend(_check_trunk_length(result, initial, final, ruleset, stretched))
     if ratio != 1.0:
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         messages.extend(f"the output looks distorted ({problem})" for problem in distortions(initial, final.vertices))
