@@ -154,17 +154,18 @@ def chest_girth(body: Body) -> float:
 
     "Behind the forelimbs" means every point of the section lies at least a margin (the first of
     ``CHEST_LIMIT_MARGINS`` that leaves a section there) of the chest's length behind (along the
-    torso axis) the rearmost point where the forelimbs meet the body; without forelimbs, any section. The candidates are the sections at fixed area
-    quantiles of the chest that lie behind that limit, plus the section at the limit: where the
-    chest widens towards the forelimbs (real horses) the largest is that last one, and it moves
-    with the forelimbs continuously instead of jumping from one quantile to the next. When no
+    torso axis) the rearmost point where the forelimbs meet the body; without forelimbs, any
+    section. The candidates are the sections at fixed area quantiles of the chest that lie behind
+    that limit, plus the section at the limit: where the chest still widens towards the forelimbs
+    (real horses) the largest is that last one, and it moves with the forelimbs continuously
+    instead of jumping from one quantile to the next. When no
     section of the chest alone goes around the body there (its boundary with the abdomen zigzags
     across the large faces of a low-poly mesh, or the neck's region reaches over the withers), the
     same levels are cut around the whole torso, and failing that around the whole body: a tape goes
     round the trunk whatever the labels. Only the trunk's own section counts (:func:`_trunk_section`),
     and a piece is used only where it gives it at MIN_TRUNK_LEVELS levels or more.
-    On a carried body (:func:`carry_fields`) the quantile levels, and where they were cut, are the
-    reference's (and the trunk check is not repeated on them).
+    On a carried body (:func:`carry_fields`) the quantile levels, where they were cut and the
+    margin are the reference's (and the trunk check is not repeated on them).
     """
     axis = torso_axis(body)
     part = region_parts(body, "chest")[0]

@@ -61,9 +61,8 @@ def trunk_length(body: Body) -> float:
     the point of the shoulder to the point of the buttock, as animal scientists measure body length.
     (The regions' own skeletons run across a short, thick torso region as readily as along it: the
     bull 386 drawn out to exponent 0.6 along its back measured 0.35 by them.)"""
-    from allorules.measure.girth import (
-        torso_axis,  # girth measures build on this module
-    )
+    # imported here: the girth measures build on this module
+    from allorules.measure.girth import torso_axis
 
     torso = np.zeros(len(body.vertices), dtype=bool)
     for region in TORSO_REGIONS:

@@ -449,7 +449,6 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
     if ratio != 1.0:
         messages.extend(_check_trunk_length(result, initial, final, ruleset, stretched))
-    if ratio != 1.0:
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         messages.extend(f"the output looks distorted ({problem})" for problem in distortions(initial, final.vertices))
     result.converged = not messages
