@@ -8,11 +8,11 @@ import trimesh
 from allorules.body import Body, Frame
 from allorules.errors import MeasurementError
 from allorules.measure.cache import measured
-from allorules.measure.girth import chest_girth, region_girth, torso_axis
+from allorules.measure.girth import chest_girth, region_girth
 from allorules.measure.length import region_length, region_skeleton
 from allorules.measure.limbs import limb_sections
 from allorules.measure.mass import body_mass, capped, region_mass
-from allorules.measure.parts import carry_fields, region_parts
+from allorules.measure.parts import carry_fields, region_parts, torso_axis
 from allorules.measure.sections import (
     boundary_loops,
     fiedler_vector,

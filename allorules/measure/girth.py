@@ -16,13 +16,14 @@ from allorules.measure.parts import (
     TORSO_REGIONS,
     RegionPart,
     region_parts,
+    torso_axis,
 )
 from allorules.measure.sections import (
     Loop,
     area_quantiles,
     isocontour_loops,
 )
-from allorules.mesh.geometry import face_areas, vertex_areas
+from allorules.mesh.geometry import face_areas
 from allorules.mesh.topology import face_parts, submesh
 
 # Heart girth's last candidate lies this share of the chest's length behind the forelimbs, clear of
@@ -31,33 +32,6 @@ from allorules.mesh.topology import face_parts, submesh
 # by 1.2 % between two tessellations of one horse (a margin of 0.06: 0.3 %). Where no section lies
 # behind that (a chest that hardly reaches behind the forelimbs), the next margin is tried.
 CHEST_LIMIT_MARGINS = (0.06, 0.01)
-
-
-def torso_axis(body: Body) -> np.ndarray:
-    """Unit vector from the back of the torso to its front.
-
-    ``body.frame.forward`` when the body has a frame; otherwise the torso's (chest and abdomen)
-    area-weighted principal axis, pointing from the abdomen's centroid to the chest's.
-    """
-    if body.frame is not None:
-        forward = np.asarray(body.frame.forward, dtype=float)
-        return forward / np.linalg.norm(forward)
-    if not all(body.has_region(region) for region in TORSO_REGIONS):
-        raise MeasurementError(
-            "the torso's direction is unknown: the body needs both 'chest' and 'abdomen' regions or a "
-            "frame (up/forward) to measure chest girth"
-        )
-    mass = vertex_areas(body.vertices, body.faces)
-    centroids = {}
-    for region in TORSO_REGIONS:
-        mask = body.region_mask(region)
-        centroids[region] = (body.vertices[mask] * mass[mask, None]).sum(axis=0) / mass[mask].sum()
-    mask = body.region_mask("chest") | body.region_mask("abdomen")
-    weights = mass[mask] / mass[mask].sum()
-    centred = body.vertices[mask] - (body.vertices[mask] * weights[:, None]).sum(axis=0)
-    covariance = (centred * weights[:, None]).T @ centred
-    axis = np.linalg.eigh(covariance)[1][:, -1]
-    return axis if axis @ (centroids["chest"] - centroids["abdomen"]) >= 0 else -axis
 
 
 def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray | None = None,

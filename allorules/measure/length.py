@@ -15,6 +15,7 @@ from allorules.measure.parts import (
     TORSO_REGIONS,
     _closed_fields,
     region_parts,
+    torso_axis,
 )
 from allorules.measure.sections import (
     Skeleton,
@@ -61,9 +62,6 @@ def trunk_length(body: Body) -> float:
     the point of the shoulder to the point of the buttock, as animal scientists measure body length.
     (The regions' own skeletons run across a short, thick torso region as readily as along it: the
     bull 386 drawn out to exponent 0.6 along its back measured 0.35 by them.)"""
-    # imported here: the girth measures build on this module
-    from allorules.measure.girth import torso_axis
-
     torso = np.zeros(len(body.vertices), dtype=bool)
     for region in TORSO_REGIONS:
         if body.has_region(region):

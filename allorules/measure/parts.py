@@ -1,6 +1,7 @@
 """Regions as meshes of their own: connected parts (a paired region split into its legs), their
 holes capped, the field that runs along each part, and carrying all of that to a moved copy of
-the body (so an optimiser measures trial meshes along the same material curves).
+the body (so an optimiser measures trial meshes along the same material curves); and the torso's
+axis, along which girths and the trunk's length are taken.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from allorules.measure.sections import (
     fiedler_vector,
     harmonic_field,
 )
-from allorules.mesh.geometry import face_areas
+from allorules.mesh.geometry import face_areas, vertex_areas
 from allorules.mesh.topology import (
     HoleCaps,
     boundary_edge_loops,
@@ -272,3 +273,30 @@ def carry_fields(reference: Body, body: Body) -> Body:
     if source.chest_candidates is not None:
         carried.chest_candidates = source.chest_candidates
     return body
+
+
+def torso_axis(body: Body) -> np.ndarray:
+    """Unit vector from the back of the torso to its front.
+
+    ``body.frame.forward`` when the body has a frame; otherwise the torso's (chest and abdomen)
+    area-weighted principal axis, pointing from the abdomen's centroid to the chest's.
+    """
+    if body.frame is not None:
+        forward = np.asarray(body.frame.forward, dtype=float)
+        return forward / np.linalg.norm(forward)
+    if not all(body.has_region(region) for region in TORSO_REGIONS):
+        raise MeasurementError(
+            "the torso's direction is unknown: the body needs both 'chest' and 'abdomen' regions or a "
+            "frame (up/forward) to measure chest girth"
+        )
+    mass = vertex_areas(body.vertices, body.faces)
+    centroids = {}
+    for region in TORSO_REGIONS:
+        mask = body.region_mask(region)
+        centroids[region] = (body.vertices[mask] * mass[mask, None]).sum(axis=0) / mass[mask].sum()
+    mask = body.region_mask("chest") | body.region_mask("abdomen")
+    weights = mass[mask] / mass[mask].sum()
+    centred = body.vertices[mask] - (body.vertices[mask] * weights[:, None]).sum(axis=0)
+    covariance = (centred * weights[:, None]).T @ centred
+    axis = np.linalg.eigh(covariance)[1][:, -1]
+    return axis if axis @ (centroids["chest"] - centroids["abdomen"]) >= 0 else -axis
