@@ -287,7 +287,7 @@ def torso_axis(body: Body) -> np.ndarray:
     if not all(body.has_region(region) for region in TORSO_REGIONS):
         raise MeasurementError(
             "the torso's direction is unknown: the body needs both 'chest' and 'abdomen' regions or a "
-            "frame (up/forward) to measure chest girth"
+            "frame (up/forward) to measure along the torso (chest girth, the trunk's length)"
         )
     mass = vertex_areas(body.vertices, body.faces)
     centroids = {}
