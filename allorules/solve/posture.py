@@ -6,10 +6,14 @@ No rule measures a direction or a height, so this module keeps them, without tou
 rules measure:
 
 * :class:`FootContact` is part of each step's transform (:class:`allorules.solve.transform.StepTransform`):
-  after Eq. 9, each leg is moved rigidly up or down along the ground's normal so that the feet
-  keep the heights above one another they had at the step's start (scaled with the body); the
-  rest of the body follows in a harmonic blend of the legs' shifts. The solver measures, and so
-  meets its targets on, the mesh with the feet put back.
+  after Eq. 9, the feet are put back at the heights above one another they had at the step's
+  start (scaled with the body), along the ground's normal. What a pair of legs (a limb region)
+  moved together is undone by moving the pair rigidly, the rest of the body following in a
+  harmonic blend (the torso tilts back fore and aft); what one leg moved against its mate (Eq. 9
+  shortened the two unequally) is undone by stretching that leg below its junction, which stays
+  where it is (moved rigidly, the leg dragged the chest down around it like a sleeve: the
+  Princeton horse 382 at ×0.5). The solver measures, and so meets its targets on, the mesh with
+  the feet put back.
 * :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
   after the step; the step's foot contact is then applied once more, since turning a slanted
   leg moves its foot (:func:`allorules.runs.ruleset_run.scale_with_ruleset`).
@@ -20,13 +24,14 @@ rules measure:
 ``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
 paper's behaviour).
 
-The first two move each leg as a rigid whole (the turn below a short blend at its top), so its
-length, girths and load-bearing section are what the step made them; the third moves each
+The turn moves each leg as a rigid whole below a short blend at its top, and the foot contact
+moves each pair rigidly, so a pair's length, girths and load-bearing section are what the step
+made them (a leg stretched against its mate gains what its mate gives up); the third moves each
 cross-section as a whole, across the leg.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sparse
@@ -66,11 +71,14 @@ def _limb_pairs(reference: Body, moved: Body) -> list[tuple]:
 
 @dataclass(frozen=True)
 class FootContact:
-    """How to put a moved body's feet back at the heights above one another it had.
+    """How to put a moved body's feet back at the heights above one another they had.
 
     ``feet[k]``: body vertices of leg k's foot (the leg beyond its last cross-section);
-    ``weights[k]``: how much each body vertex follows leg k's shift (1 on the leg, 0 on the
+    ``weights[k]``: how much each body vertex follows leg k's rigid shift (1 on the leg, 0 on the
     other legs, a harmonic blend in between: see :meth:`of`);
+    ``stretch[k]``: how much each body vertex follows leg k's stretch (0 at the leg's junction
+    rising along the leg to 1 at its foot, 0 off the leg);
+    ``pairs[k]``: the pair (limb region) leg k belongs to;
     ``heights[k]``: the foot's height above the feet's mean, along ``down``, at the start.
     """
 
@@ -78,16 +86,19 @@ class FootContact:
     feet: tuple[np.ndarray, ...]
     weights: np.ndarray          # (legs, vertices)
     heights: np.ndarray          # (legs,)
+    stretch: np.ndarray | None = None   # (legs, vertices); None: every leg moves rigidly
+    pairs: np.ndarray | None = None     # (legs,) pair number of each leg
 
     @classmethod
     def of(cls, body: Body) -> "FootContact | None":
         """The feet of ``body`` as they stand; ``None`` for a body with fewer than two legs.
 
-        The weights are harmonic over the rest of the body (:func:`_harmonic_weights`): 1 on leg
-        k and 0 on the other legs, and in between the smoothest blend, so the torso follows the
+        The rigid weights are harmonic over the rest of the body (:func:`_harmonic_weights`): 1 on
+        leg k and 0 on the other legs, and in between the smoothest blend, so the torso follows the
         legs' shifts without a crease and the weights sum to 1 everywhere. Each piece hanging
         off the torso (the tail; the neck with the head) is one rigid node of that blend: it
-        moves as one, and is not bent or sheared.
+        moves as one, and is not bent or sheared. The stretch weights rise linearly along the
+        leg's field from its junction to its foot (:func:`_stretch_weights`).
         """
         from allorules.measure.limbs import stance_down
         from allorules.measure.parts import TORSO_REGIONS
@@ -108,8 +119,9 @@ class FootContact:
         weights = _harmonic_weights(_conductances(body.vertices, body.faces), on_leg, torso, len(limbs))
         feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)
         down = stance_down(limbs, body.frame)
-        contact = cls(down, feet, weights, np.zeros(len(limbs)))
-        return cls(down, feet, weights, contact.foot_heights(body.vertices))
+        _, pairs = np.unique([limb.region for limb in limbs], return_inverse=True)
+        contact = cls(down, feet, weights, np.zeros(len(limbs)), _stretch_weights(limbs, len(body.vertices)), pairs)
+        return replace(contact, heights=contact.foot_heights(body.vertices))
 
     def foot_heights(self, vertices: np.ndarray) -> np.ndarray:
         """Each foot's height above the feet's mean, along −``down`` (its vertices' mean)."""
@@ -117,11 +129,34 @@ class FootContact:
         return heights - heights.mean()
 
     def apply(self, vertices: np.ndarray, scale: float) -> np.ndarray:
-        """``vertices`` with each leg shifted along ``down`` so that the feet stand as at the start,
-        heights × ``scale`` (the step's isometric factor): x' = x + Σ_k w_k(x) δ_k · down with
-        δ_k = h_k(x) − scale · h_k(start). The shifts sum to zero, so the body does not sink."""
+        """``vertices`` with the feet put back as they stood at the start, heights × ``scale`` (the
+        step's isometric factor), along ``down``: each leg's shift δ_k = h_k(x) − scale · h_k(start)
+        splits into its pair's mean δ_P, moved rigidly, and the rest δ_k − δ_P, stretched below
+        the junction: x' = x + (Σ_k w_k(x) δ_P(k) + Σ_k t_k(x) (δ_k − δ_P(k))) · down. The shifts
+        sum to zero, so the body does not sink."""
         shift = self.foot_heights(vertices) - scale * self.heights
-        return vertices + np.outer(self.weights.T @ shift, self.down)
+        rigid = shift.copy()
+        if self.stretch is not None:
+            for pair in np.unique(self.pairs):
+                rigid[self.pairs == pair] = shift[self.pairs == pair].mean()
+        moved = self.weights.T @ rigid
+        if self.stretch is not None:
+            moved = moved + self.stretch.T @ (shift - rigid)
+        return vertices + np.outer(moved, self.down)
+
+
+def _stretch_weights(limbs: list, count: int) -> np.ndarray:
+    """Per leg, 0 at its junction rising linearly along its field to 1 at its foot (the leg
+    beyond its last section), 0 off the leg; a vertex two legs share (knees that touch) takes
+    the mean of the two."""
+    stretch = np.zeros((len(limbs), count))
+    for k, limb in enumerate(limbs):
+        lowest, foot = float(limb.field.min()), float(limb.levels[-1])
+        rise = np.clip((limb.field - lowest) / (foot - lowest), 0.0, 1.0) if foot > lowest else np.ones(len(limb.field))
+        stretch[k, limb.mesh.vertex_index] = rise
+    shared = (stretch > 0).sum(axis=0) > 1
+    stretch[:, shared] /= (stretch[:, shared] > 0).sum(axis=0)
+    return stretch
 
 
 def _harmonic_weights(conductance: sparse.csr_matrix, on_leg: np.ndarray, torso: np.ndarray, legs: int) -> np.ndarray:
