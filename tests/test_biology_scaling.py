@@ -28,6 +28,7 @@ from allorules.runs.results import (
 )
 from allorules.runs.ruleset_run import posture_warnings, scale_with_ruleset
 from allorules.runs.steps import step_ratios
+from allorules.solve.energy import cached_measure
 
 VERTICES = 1000
 MODES = 300
@@ -183,6 +184,53 @@ def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, mo
         """), encoding="utf-8")
     ruled = _run(animal, registry, load_ruleset(str(path), registry), 2.0)
     assert not any("trunk's length" in message for message in ruled.messages)
+
+
+def test_the_trunks_length_is_a_measure_a_rule_can_name(animal, registry, tmp_path):
+    """``trunk-length`` (shoulder to buttock along the torso) is a whole-body measure: a rule on it
+    says how long the trunk grows, so the verdict's check of the trunk stands aside, and the
+    trunk's hold (solver.trunk_hold) has nothing to hold."""
+    from allorules.measure.length import trunk_length
+    from allorules.runs import ruleset_run
+
+    body = animal.body()
+    spec = registry.measure("trunk-length")
+    assert spec.compute(body, None) == trunk_length(body) and spec.isometric_exponent == pytest.approx(1 / 3)
+    assert not spec.accepts_region
+    path = tmp_path / "long-trunk.yaml"
+    path.write_text(textwrap.dedent("""\
+        name: long-trunk
+        description: a dachshund's trunk
+        extends: quadruped
+        rules:
+          - id: trunk-length
+            measure: trunk-length
+            exponent: 0.45
+            source: a breeder's wish
+        """), encoding="utf-8")
+    ruleset = load_ruleset(str(path), registry)
+    assert ruleset_run._trunk_ruled(ruleset) and not ruleset_run._trunk_ruled(load_ruleset("quadruped", registry))
+    measure = cached_measure(registry)
+    assert ruleset_run._trunk_hold_term(ruleset, body, measure) is None
+    term = ruleset_run._trunk_hold_term(load_ruleset("quadruped", registry), body, measure)
+    assert (term.measure, term.region, term.exponent) == ("trunk-length", None, pytest.approx(1 / 3))
+
+
+@pytest.mark.slow
+def test_the_trunk_held_isometric_brings_a_drawn_out_trunk_back(animal, registry):
+    """With δ free the generated horse at ×2 meets every rule with its trunk at exponent 0.435
+    (κ and δ on); held by the soft term of solver.trunk_hold, δ brings it to isometric with every
+    rule still met."""
+    from dataclasses import replace
+
+    quadruped = load_ruleset("quadruped", registry)
+    free = replace(quadruped, solver=replace(quadruped.solver, trunk_stretch="on", limb_thickness="on"))
+    held = replace(free, solver=replace(free.solver, trunk_hold="on"))
+    loose, kept = _run(animal, registry, free, 2.0), _run(animal, registry, held, 2.0)
+    assert all(step.trunk_stretch is not None for step in kept.steps)
+    assert abs(kept.trunk_length_exponent - 1 / 3) < 0.5 * abs(loose.trunk_length_exponent - 1 / 3)
+    assert abs(kept.trunk_length_exponent - 1 / 3) <= 0.02
+    assert kept.converged, kept.messages
 
 
 def test_isometric_ruleset_is_uniform_scaling(animal, registry):

@@ -365,6 +365,7 @@ def test_solver_errors(tmp_path, registry):
         "solver: {transform: per-vertex}": "per-mode",
         "solver: {posture: standing}": "posture",
         "solver: {trunk_stretch: sometimes}": "solver.trunk_stretch 'sometimes' is not one of 'when-needed', 'on', 'off'",
+        "solver: {trunk_hold: always}": "solver.trunk_hold 'always' is not one of 'when-needed', 'on', 'off'",
         "solver: {limb_thickness: thick}": "solver.limb_thickness 'thick' is not one of 'off', 'when-needed', 'on'",
         "solver: {ruled_shape: keep}": "solver.ruled_shape 'keep' is not one of",
     }
@@ -386,6 +387,9 @@ def test_transform_form_and_posture_are_the_methods_unless_the_ruleset_says(tmp_
         assert ruleset.solver.trunk_stretch == meant
         ruleset = load_ruleset(write(tmp_path, "limbs.yaml", MINIMAL + f"solver: {{limb_thickness: {written}}}\n"), registry)
         assert ruleset.solver.limb_thickness == meant
+        ruleset = load_ruleset(write(tmp_path, "hold.yaml", MINIMAL + f"solver: {{trunk_hold: {written}}}\n"), registry)
+        assert ruleset.solver.trunk_hold == meant
+    assert solver.trunk_hold == "when-needed"
 
 
 def test_numbers_without_a_dot_are_numbers(tmp_path, registry):

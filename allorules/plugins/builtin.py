@@ -41,6 +41,13 @@ def _girth(body: Body, region: str | None) -> float:
     return region_girth(body, region)
 
 
+def _trunk_length(body: Body, region: str | None) -> float:
+    from allorules.measure.length import trunk_length
+
+    # point of the shoulder to point of the buttock: the torso's extent along its axis
+    return trunk_length(body)
+
+
 def _stress(body: Body, region: str | None) -> float:
     from allorules.measure.stress import peak_stress
 
@@ -56,6 +63,9 @@ MEASURES = [
                 "length of a region: diameter of its skeleton, mean over the parts of a paired region"),
     MeasureSpec("girth", "girth", 1 / 3, _girth,
                 "perimeter of a region's cross-section where it is measured (chest: largest behind the forelimbs)"),
+    MeasureSpec("trunk-length", "length", 1 / 3, _trunk_length,
+                "the trunk's length: extent of chest and abdomen along the torso's axis (shoulder to buttock)",
+                needs_region=False, accepts_region=False),
     MeasureSpec("stress", "stress", 1 / 3, _stress,
                 "peak limb stress M/A: body mass over the smallest load-bearing limb cross-section",
                 needs_region=False, accepts_region=False),

@@ -70,6 +70,7 @@ class SolverSettings:
     detail_cutoff: float | None = None   # Eq. 9 on the base only, detail kept (power_laws.DetailLayer); None: every mode
     trunk_stretch: str = "when-needed"   # the trunk's length as one more variable: "on", "off", or "when-needed" (TRUNK_STRETCH)
     limb_thickness: str = "when-needed"  # the limbs' thickness as one more variable: "on", "off", or "when-needed" (LIMB_THICKNESS)
+    trunk_hold: str = "when-needed"      # the trunk's length held isometric by a soft term, δ its lever (TRUNK_HOLD)
     ruled_shape: str = "hold"            # a head sized by its rule keeps its shape; "reshape": Eq. 9's α (RULED_SHAPES)
 
 
@@ -184,7 +185,7 @@ def ruleset_to_dict(ruleset: Ruleset) -> dict[str, Any]:
         "parameter_tolerance": solver.parameter_tolerance, "max_evaluations": solver.max_evaluations,
         "scale_bounds": list(solver.scale_bounds), "alpha_bounds": list(solver.alpha_bounds),
         "transform": solver.transform, "posture": solver.posture, "detail_cutoff": solver.detail_cutoff,
-        "trunk_stretch": solver.trunk_stretch, "limb_thickness": solver.limb_thickness,
+        "trunk_stretch": solver.trunk_stretch, "limb_thickness": solver.limb_thickness, "trunk_hold": solver.trunk_hold,
         "ruled_shape": solver.ruled_shape,
     }
     opened = ruleset.open_regions
@@ -217,6 +218,13 @@ TRUNK_STRETCH = ("when-needed", "on", "off")
 # solver.limb_thickness of a ruleset (allorules/solve/limb_thickness.py): the variable κ that thickens
 # the limbs across their centre lines; "when-needed": only in a further run, as trunk_stretch.
 LIMB_THICKNESS = ("off", "when-needed", "on")
+
+
+# solver.trunk_hold of a ruleset (allorules/runs/ruleset_run.py): the trunk's length (shoulder to
+# buttock) held at its isometric exponent by a soft term, with δ, the trunk's stretch, as its lever,
+# where no rule measures the trunk; "when-needed": only in a further run, after the runs with κ and δ
+# missed (runs/pipeline.py). Eq. 9 can meet every rule by drawing the trunk out (the bull 386).
+TRUNK_HOLD = ("when-needed", "on", "off")
 
 
 # solver.ruled_shape of a ruleset (allorules/solve/held_regions.py, rule_held_regions): a region that is

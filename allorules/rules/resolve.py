@@ -26,6 +26,7 @@ from allorules.rules.model import (
     POSTURES,
     RULED_SHAPES,
     TRANSFORM_FORMS,
+    TRUNK_HOLD,
     TRUNK_STRETCH,
     BodyMassTerm,
     ConstraintUse,
@@ -534,7 +535,7 @@ def _build_solver(merged: _Merged, problems: list[RulesetError]) -> SolverSettin
     _take_choice(values, "ruled_shape", RULED_SHAPES, settings, problems, where.get("ruled_shape", whole),
                  lambda value: f"solver.ruled_shape {value!r} is not one of 'hold' (a head sized by its rule keeps its "
                                "shape) or 'reshape' (Eq. 9's α reshapes it)")
-    for key, choices in (("trunk_stretch", TRUNK_STRETCH), ("limb_thickness", LIMB_THICKNESS)):
+    for key, choices in (("trunk_stretch", TRUNK_STRETCH), ("limb_thickness", LIMB_THICKNESS), ("trunk_hold", TRUNK_HOLD)):
         if isinstance(values.get(key), bool):    # YAML reads a bare on/off (yes/no) as a boolean
             values = {**values, key: "on" if values[key] else "off"}
         _take_choice(values, key, choices, settings, problems, where.get(key, whole),

@@ -298,7 +298,10 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
        ``TRUNK_LENGTH_TOLERANCE`` of isometric; a warning says how much longer it grew). The rules can ask
        the chest for more mass than its heart girth allows (the real horse at ×2: mass exponent
        1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing what
-       no rule measures (docs/method.md, the trunk's length);
+       no rule measures (docs/method.md, the trunk's length); then, with ``solver.trunk_hold:
+       when-needed`` (the default), again with the trunk's length held at its isometric exponent by
+       a soft term, δ its lever: Eq. 9 can meet every rule by drawing the trunk out (the bull 386
+       at ×2, trunk exponent 0.657 with δ free);
     2. then with ``hold: soft`` (the appendages folded as that setting folds them), kept only if it
        meets every target *and* keeps every open region within the exponent tolerance of
        isometric: a soft run that meets the rules by letting the neck or the tail go (the real
@@ -318,18 +321,18 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
     for variable, what in _more_variables(solver):
         solver = replace(solver, **{variable: "on"})
-        log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with %s as "
-                    "one more variable", missed, what)
+        log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with %s",
+                    missed, what)
         again = run(replace(scaling.ruleset, solver=solver), body)
         if again.converged:
-            trunk = again.trunk_length_exponent if variable == "trunk_stretch" else None
+            trunk = again.trunk_length_exponent if variable in ("trunk_stretch", "trunk_hold") else None
             grown = "" if trunk is None else f"length exponent {trunk:.3f}, isometric 0.333; "
-            again.warnings.insert(0, f"the open regions held by their shape, the rules were met only with {what} as one "
-                                     f"more variable ({grown}solver.{variable}); without it: {missed}")
+            again.warnings.insert(0, f"the open regions held by their shape, the rules were met only with {what} "
+                                     f"({grown}solver.{variable}); without it: {missed}")
             log.warning("%s", again.warnings[0])
             return again
         why = again.messages[0] if again.messages else "a target missed"
-        tried.append(f"with {what} as one more variable the run did not help ({why})")
+        tried.append(f"with {what} the run did not help ({why})")
         log.warning("%s", tried[-1])
     log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with them "
                 "held by soft terms", missed)
@@ -359,12 +362,15 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
 
 def _more_variables(solver) -> list[tuple[str, str]]:
     """The variables a missed run is tried again with, in order, each kept for the tries after it:
-    the limbs' thickness, then the trunk's stretch (along the forward axis: per-axis transform only)."""
+    the limbs' thickness, then the trunk's stretch, then the trunk's length held isometric (both
+    along the forward axis: per-axis transform only)."""
     more = []
     if solver.limb_thickness == "when-needed":
-        more.append(("limb_thickness", "the limbs' thickness"))
+        more.append(("limb_thickness", "the limbs' thickness as one more variable"))
     if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
-        more.append(("trunk_stretch", "the trunk's length along the body"))
+        more.append(("trunk_stretch", "the trunk's length along the body as one more variable"))
+    if solver.trunk_hold == "when-needed" and solver.transform == "per-axis":
+        more.append(("trunk_hold", "the trunk's length held isometric by a soft term"))
     return more
 
 

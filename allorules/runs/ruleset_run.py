@@ -62,7 +62,12 @@ from allorules.runs.results import (
     RulesetStep,
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
-from allorules.solve.energy import RESIDUAL_TOLERANCE, cached_measure, energy_terms
+from allorules.solve.energy import (
+    RESIDUAL_TOLERANCE,
+    Term,
+    cached_measure,
+    energy_terms,
+)
 from allorules.solve.held_regions import HeldRegions, hold_regions, rule_held_regions
 from allorules.solve.open_regions import (
     extra_regions,
@@ -174,15 +179,19 @@ def scale_with_ruleset(
     appendages = extra_regions(ruleset, initial, held.regions)
     result.warnings.extend(held.notes)
     result.warnings.extend(open_notes)
+    # δ, the trunk's stretch, as one more variable ("when-needed": runs/pipeline.py); along the
+    # animal's forward axis, so with the per-axis transform only. Holding the trunk's length
+    # (solver.trunk_hold) adds its soft term, δ its lever.
+    per_axis = ruleset.solver.transform == "per-axis"
+    trunk_term = _trunk_hold_term(ruleset, initial, measure) if ruleset.solver.trunk_hold == "on" and per_axis else None
+    open_terms = open_terms + ([trunk_term] if trunk_term else [])
+    stretch = per_axis and (ruleset.solver.trunk_stretch == "on" or trunk_term is not None)
+    if "on" in (ruleset.solver.trunk_stretch, ruleset.solver.trunk_hold) and not per_axis:
+        result.warnings.append("solver.trunk_stretch or trunk_hold is on but the transform is per-mode, which has no "
+                               "forward axis: the trunk was neither stretched nor held")
     terms = energy_terms(ruleset) + open_terms
     anchors = {term.id: measure(term.measure, initial, term.region) for term in terms}
     reached = 1.0                                       # the mass ratio planned up to this step
-    # δ, the trunk's stretch, as one more variable ("when-needed": runs/pipeline.py); along the
-    # animal's forward axis, so with the per-axis transform only
-    stretch = ruleset.solver.trunk_stretch == "on" and ruleset.solver.transform == "per-axis"
-    if ruleset.solver.trunk_stretch == "on" and not stretch:
-        result.warnings.append("solver.trunk_stretch is on but the transform is per-mode, which has no forward axis: "
-                               "the trunk was not stretched")
     thicken = ruleset.solver.limb_thickness == "on"     # κ, the limbs' thickness (solve/limb_thickness.py)
     progress = progress or RunProgress()
     every = BASIS_EVERY if basis_every is None else int(basis_every)
@@ -308,6 +317,27 @@ def _worst_miss(misses: dict[str, float], allowed: dict[str, float]) -> float:
     return max(abs(math.log(misses[key])) / allowed[key] for key in allowed)
 
 
+def _trunk_ruled(ruleset) -> bool:
+    """Whether a rule of ``ruleset`` says how long the trunk grows: one on the trunk's length, or a
+    length rule on a torso region."""
+    return any(rule.measure == "trunk-length" or (rule.measure == "length" and rule.region in TORSO_REGIONS)
+               for rule in ruleset.rules)
+
+
+def _trunk_hold_term(ruleset, initial: Body, measure) -> Term | None:
+    """The soft term holding the trunk's length at its isometric exponent (solver.trunk_hold), of
+    the open regions' weight; None where a rule measures the trunk or the trunk cannot be measured."""
+    if _trunk_ruled(ruleset):
+        return None
+    try:
+        measure("trunk-length", initial, None)
+    except AllorulesError as error:     # no chest or abdomen, or a plugin replaced the measures
+        log.warning("the trunk's length is not held: %s", error)
+        return None
+    return Term("open:trunk:trunk-length", "open-region", "trunk-length", None, 1.0 / 3.0,
+                float(ruleset.open_regions.weight))
+
+
 def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body, ruleset, stretched: bool) -> list[str]:
     """The trunk's length exponent over the run (:func:`allorules.measure.length.trunk_length`, into
     ``result``), and what is wrong with it: beyond TRUNK_LENGTH_TOLERANCE of 1/3 where no rule
@@ -316,8 +346,7 @@ def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body
     met every rule with a trunk grown at exponent 0.6, an animal no longer the same."""
     if not any(initial.has_region(region) for region in TORSO_REGIONS):
         return []                       # no trunk: nothing was stretched (solve/transform.py)
-    ruled = any(rule.measure == "length" and rule.region in TORSO_REGIONS for rule in ruleset.rules)
-    if ruled and not stretched:
+    if _trunk_ruled(ruleset) and not stretched:
         return []
     try:
         before, after = trunk_length(initial), trunk_length(final)
