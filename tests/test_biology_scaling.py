@@ -218,9 +218,9 @@ def test_the_trunks_length_is_a_measure_a_rule_can_name(animal, registry, tmp_pa
 
 @pytest.mark.slow
 def test_the_trunk_held_isometric_brings_a_drawn_out_trunk_back(animal, registry):
-    """With δ free the generated horse at ×2 meets every rule with its trunk at exponent 0.435
-    (κ and δ on); held by the soft term of solver.trunk_hold, δ brings it to isometric with every
-    rule still met."""
+    """With δ free (κ and δ on) the generated horse at ×2 meets every rule with its trunk drawn in
+    to exponent 0.210, refused; held by the soft term of solver.trunk_hold, δ brings it to 0.333
+    with every rule still met."""
     from dataclasses import replace
 
     quadruped = load_ruleset("quadruped", registry)
