@@ -190,10 +190,11 @@ def test_an_appendage_does_not_follow_a_twist_of_its_opening(horse_held):
 def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft_terms(generated_horse, monkeypatch):
     """The pipeline's fallbacks (runs/pipeline.py): held by their shape the open regions left a
     target missed (the real horse at ×2), so the run is made again with the trunk's stretch as one
-    more variable, kept when it meets every target; else with ``hold: soft`` on the body folded as
-    that setting folds it, kept only when it meets every target with every open region within the
-    tolerance of isometric; when it misses, or meets the rules by letting the neck go (the real
-    horse: neck length 0.515), the first run is kept and says so."""
+    more variable, kept when it meets every target; else with the trunk's length held isometric
+    too (the bull 386 at ×2), kept when it meets every target; else with ``hold: soft`` on the body
+    folded as that setting folds it, kept only when it meets every target with every open region
+    within the tolerance of isometric; when it misses, or meets the rules by letting the neck go
+    (the real horse: neck length 0.515), the first run is kept and says so."""
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
     from allorules.runs.results import BiologyScalingResult
@@ -204,14 +205,18 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     calls = []
     # case: (the stretched run converges, the soft run converges, the soft run's neck length exponent)
     cases = {"stretch meets": (True, True, 0.345), "stretch overdraws": (True, True, 0.345),
-             "soft meets": (False, True, 0.345), "soft strays": (False, True, 0.515), "all miss": (False, False, 0.345)}
+             "hold meets": (False, True, 0.345), "soft meets": (False, True, 0.345),
+             "soft strays": (False, True, 0.515), "all miss": (False, False, 0.345)}
 
     def fake(labelled, ruleset, ratio, **options):
-        hold, stretch = ruleset.open_regions.hold, ruleset.solver.trunk_stretch
-        calls.append((hold, stretch, labelled.region_names))
+        hold, stretch, held_trunk = ruleset.open_regions.hold, ruleset.solver.trunk_stretch, ruleset.solver.trunk_hold
+        calls.append((hold, stretch, held_trunk, labelled.region_names))
         stretch_meets, soft_meets, soft_neck = cases[case]
         outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, soft_neck if hold == "soft" else 1 / 3, True,
                                     0.02, hold)
+        if held_trunk == "on" and case == "hold meets":
+            return BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=True, messages=[],
+                                        open_regions=[outcome], trunk_length_exponent=0.333)
         if stretch == "on":     # the trunk's length as the run's _finish checks it (the horse's 0.384; the donkey's 1.43)
             trunk = 1.43 if case == "stretch overdraws" else 0.384
             messages = [] if case == "stretch meets" else (
@@ -227,18 +232,23 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
     quadruped = load_ruleset("quadruped")   # the limbs' thickness off: its own try is tested below
     scaling = pipeline.RulesetScaling(replace(quadruped, solver=replace(quadruped.solver, limb_thickness="off")), 2.0)
+    first, stretched, held = ("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed"), ("shape", "on", "on")
     for case in cases:
         calls.clear()
         result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-        tried = [(hold, stretch) for hold, stretch, _ in calls]
+        tried = [call[:3] for call in calls]
         if case == "stretch meets":
-            assert tried == [("shape", "when-needed"), ("shape", "on")]
+            assert tried == [first, stretched]
             assert result.converged and "the trunk's length along the body as one more variable (length exponent 0.384" in result.warnings[0]
             continue
-        assert tried == [("shape", "when-needed"), ("shape", "on"), ("soft", "when-needed")]
+        if case == "hold meets":
+            assert tried == [first, stretched, held]
+            assert result.converged and "held isometric by a soft term (length exponent 0.333" in result.warnings[0]
+            continue
+        assert tried == [first, stretched, held, ("soft", "when-needed", "when-needed")]
         # the soft run keeps the tail apart too (held by soft terms, and judged on it): folded into
         # the abdomen it followed the abdomen's rules (the camel's tail vanished into its rump at ×2)
-        assert "tail" in calls[1][2] and "tail" in calls[2][2]
+        assert all("tail" in call[3] for call in calls)
         if case == "stretch overdraws":
             assert "trunk's length reached exponent 1.430" in " ".join(result.warnings)
         if case in ("soft meets", "stretch overdraws"):
@@ -248,12 +258,12 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
             assert not result.converged and result.open_regions[0].hold == "shape"
             assert "did not help" in result.warnings[-2] and "did not help" in result.warnings[-1]
             assert ("length exponent 0.515" in result.warnings[-1]) == (case == "soft strays")
-    # a ruleset that turns the stretch off goes straight to soft terms
+    # a ruleset that turns the stretch off goes straight to soft terms (the hold needs δ)
     calls.clear()
     case = "soft meets"
     off = replace(scaling.ruleset, solver=replace(scaling.ruleset.solver, trunk_stretch="off"))
     pipeline.scale(body, pipeline.RulesetScaling(off, 2.0), registry=pipeline.registry_for(None))
-    assert [(hold, stretch) for hold, stretch, _ in calls] == [("shape", "off"), ("soft", "off")]
+    assert [call[:2] for call in calls] == [("shape", "off"), ("soft", "off")]
     calls.clear()
     monkeypatch.setattr(pipeline, "scale_with_ruleset",
                         lambda labelled, ruleset, ratio, **options: calls.append(1) or BiologyScalingResult(

@@ -78,7 +78,7 @@ def test_a_rule_replaces_the_default_and_appendages_are_open(generated_horse, tm
 
 @pytest.mark.slow
 def test_soft_terms_hold_the_open_neck_when_asked_and_neck_override_still_controls(tmp_path):
-    """The demo's animal (2,000 vertices, 60 modes) at ×2: held by soft terms of weight 1 (a ruleset's
+    """The demo's animal (2,000 vertices, 120 modes) at ×2: held by soft terms of weight 1 (a ruleset's
     open_regions; the shape hold, the default, is tests/test_held_regions.py), the open neck's length and mass exponents stay within ±0.02 of 1/3 and 1 (it was
     free before and grew: neck/body 0.177 → 0.228 with this measure); neck-override's rule still
     moves it where it is told. (The default weight, 0.01, keeps every rule converging on the test
@@ -92,12 +92,11 @@ def test_soft_terms_hold_the_open_neck_when_asked_and_neck_override_still_contro
     body = label_quadruped(Body(generated.vertices, generated.faces))
     registry = registry_for(None)
     held = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions: {hold: soft, weight: 1}\n"), registry)
-    result = scale_with_ruleset(body, held, 2.0, registry=registry, modes=60, use_cache=False)
-    # every rule met; what the neck no longer takes the trunk may (at 60 modes its length grew at
-    # 0.49 here), which the run's verdict says: that is its only complaint
+    result = scale_with_ruleset(body, held, 2.0, registry=registry, modes=120, use_cache=False)
+    # every rule met, and the trunk within the verdict's check (at 60 modes what the neck no
+    # longer took the trunk did, its length growing at 0.49, and the mass missed by 1.1 %)
     assert all(abs(rule.achieved_exponent - rule.exponent) <= 0.02 for rule in result.rules), result.messages
-    assert result.converged or all("trunk's length" in message or message.startswith("not converged")
-                                   for message in result.messages), result.messages
+    assert result.converged, result.messages
     neck = {outcome.measure: outcome for outcome in result.open_regions if outcome.region == "neck"}
     assert abs(neck["length"].achieved_exponent - 1 / 3) <= 0.02
     assert abs(neck["mass"].achieved_exponent - 1.0) <= 0.02

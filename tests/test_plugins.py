@@ -58,7 +58,7 @@ def rotation(seed=3):
 # -- the built-in plugin ---------------------------------------------------------------------------
 def test_builtin_plugin_registers_through_the_hooks():
     registry = registry_for([], entry_points=False)
-    assert set(registry.measures()) == {"mass", "length", "girth", "stress"}
+    assert set(registry.measures()) == {"mass", "length", "girth", "trunk-length", "stress"}
     assert set(registry.constraints()) == {"terrestrial-limb-stress"}
     assert set(registry.segmenters()) == {"auto-quadruped", "merge-file"}
     [info] = registry.describe()

@@ -362,14 +362,14 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
 
 def _more_variables(solver) -> list[tuple[str, str]]:
     """The variables a missed run is tried again with, in order, each kept for the tries after it:
-    the limbs' thickness, then the trunk's stretch, then the trunk's length held isometric (both
-    along the forward axis: per-axis transform only)."""
+    the limbs' thickness, then the trunk's stretch, then the trunk's length held isometric, δ its
+    lever (both along the forward axis: per-axis transform only; no hold when δ is off)."""
     more = []
     if solver.limb_thickness == "when-needed":
         more.append(("limb_thickness", "the limbs' thickness as one more variable"))
     if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
         more.append(("trunk_stretch", "the trunk's length along the body as one more variable"))
-    if solver.trunk_hold == "when-needed" and solver.transform == "per-axis":
+    if solver.trunk_hold == "when-needed" and solver.trunk_stretch != "off" and solver.transform == "per-axis":
         more.append(("trunk_hold", "the trunk's length held isometric by a soft term"))
     return more
 
