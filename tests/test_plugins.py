@@ -63,10 +63,10 @@ def test_builtin_plugin_registers_through_the_hooks():
     assert set(registry.segmenters()) == {"auto-quadruped", "merge-file"}
     [info] = registry.describe()
     assert (info.name, info.origin) == ("builtin", "built-in")
-    assert info.provides["measure"] == ["mass", "length", "girth", "stress"]
+    assert info.provides["measure"] == ["mass", "length", "girth", "trunk-length", "stress"]
     assert registry.failures == []
     # the hooks are ordinary pluggy hooks: each returns a list per plugin
-    assert [len(items) for items in registry.hook.allorules_measures()] == [4]
+    assert [len(items) for items in registry.hook.allorules_measures()] == [5]
 
 
 def test_builtin_measure_wrappers_call_the_measure_modules(monkeypatch):
@@ -83,6 +83,7 @@ def test_builtin_measure_wrappers_call_the_measure_modules(monkeypatch):
     monkeypatch.setattr("allorules.measure.length.region_length", fake("region_length", 3.0))
     monkeypatch.setattr("allorules.measure.girth.region_girth", fake("region_girth", 5.0))
     monkeypatch.setattr("allorules.measure.stress.peak_stress", fake("peak_stress", 7.0))
+    monkeypatch.setattr("allorules.measure.length.trunk_length", fake("trunk_length", 11.0))
     measures = registry_for([], entry_points=False).measures()
     body = box()
     assert measures["mass"].compute(body, None) == 8.0
@@ -90,8 +91,9 @@ def test_builtin_measure_wrappers_call_the_measure_modules(monkeypatch):
     assert measures["length"].compute(body, "forelimbs") == 3.0
     assert measures["girth"].compute(body, "chest") == 5.0
     assert measures["stress"].compute(body, None) == 7.0
+    assert measures["trunk-length"].compute(body, None) == 11.0
     assert calls == [("body_mass",), ("region_mass", "head"), ("region_length", "forelimbs"),
-                     ("region_girth", "chest"), ("peak_stress",)]
+                     ("region_girth", "chest"), ("peak_stress",), ("trunk_length",)]
     assert [measures[n].isometric_exponent for n in ("mass", "length", "girth", "stress")] == \
         pytest.approx([1, 1 / 3, 1 / 3, 1 / 3])
 
