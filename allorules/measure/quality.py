@@ -344,9 +344,11 @@ class QualityReport:
 # Princeton pigs 383 and 388 at ×2 met every rule with swollen, lumpy legs and mangled heads: the
 # dihedral angles changed by 0.65 and 0.79 of the input's own (RMS), worst features 0.34 and 0.46).
 # Outputs that look right measured 0.11-0.32 (the faceted bull 386: 0.26, where the 99th percentile
-# of the change, 28°, was larger than the pigs' smooth ones would suggest) and worst features
-# 0.04-0.17 (docs/method.md, small features).
-ROUGHNESS_SHARE_LIMIT = 0.5      # RMS change of the dihedral angles over the input's own RMS dihedral angle
+# of the change, 28°, was larger than the pigs' smooth ones would suggest; the pig 383 at ×0.5, a
+# little lumpy about the head, 0.36) and worst features 0.04-0.17 (docs/method.md, small features).
+# The donkey 385 at ×0.5, 0.43, sagged into a creased pot belly with bulging hips: the limit, once
+# 0.5, is 0.4.
+ROUGHNESS_SHARE_LIMIT = 0.4      # RMS change of the dihedral angles over the input's own RMS dihedral angle
 FEATURE_SHAPE_LIMIT = 0.3        # a small feature's shape change, in units of its size
 
 
