@@ -189,9 +189,9 @@ def test_an_appendage_does_not_follow_a_twist_of_its_opening(horse_held):
 
 def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft_terms(generated_horse, monkeypatch):
     """The pipeline's fallbacks (runs/pipeline.py): held by their shape the open regions left a
-    target missed (the real horse at ×2), so the run is made again with the trunk's stretch as one
-    more variable, kept when it meets every target; else with the trunk's length held isometric
-    too (the bull 386 at ×2), kept when it meets every target; else with ``hold: soft`` on the body
+    target missed (the real horse at ×2), so the run is made again with the trunk's length held
+    isometric, the trunk's stretch its lever (the bull 386 at ×2), kept when it meets every target;
+    else with the stretch free, kept when it meets every target; else with ``hold: soft`` on the body
     folded as that setting folds it, kept only when it meets every target with every open region
     within the tolerance of isometric; when it misses, or meets the rules by letting the neck go
     (the real horse: neck length 0.515), the first run is kept and says so."""
@@ -232,20 +232,20 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
     quadruped = load_ruleset("quadruped")   # the limbs' thickness off: its own try is tested below
     scaling = pipeline.RulesetScaling(replace(quadruped, solver=replace(quadruped.solver, limb_thickness="off")), 2.0)
-    first, stretched, held = ("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed"), ("shape", "on", "on")
+    first, held, stretched = ("shape", "when-needed", "when-needed"), ("shape", "when-needed", "on"), ("shape", "on", "off")
     for case in cases:
         calls.clear()
         result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
         tried = [call[:3] for call in calls]
         if case == "stretch meets":
-            assert tried == [first, stretched]
+            assert tried == [first, held, stretched]
             assert result.converged and "the trunk's length along the body as one more variable (length exponent 0.384" in result.warnings[0]
             continue
         if case == "hold meets":
-            assert tried == [first, stretched, held]
+            assert tried == [first, held]
             assert result.converged and "held isometric by a soft term (length exponent 0.333" in result.warnings[0]
             continue
-        assert tried == [first, stretched, held, ("soft", "when-needed", "when-needed")]
+        assert tried == [first, held, stretched, ("soft", "when-needed", "when-needed")]
         # the soft run keeps the tail apart too (held by soft terms, and judged on it): folded into
         # the abdomen it followed the abdomen's rules (the camel's tail vanished into its rump at ×2)
         assert all("tail" in call[3] for call in calls)
@@ -298,9 +298,9 @@ def test_a_head_whose_rule_fixes_its_size_is_held_at_that_size_unless_told(gener
 
 
 def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_on(generated_horse, monkeypatch):
-    """solver.limb_thickness: when-needed makes a missed run again with κ, then with κ and δ (each
-    variable kept for the tries after it), then with soft terms; the first that meets is kept and
-    says what it took."""
+    """solver.limb_thickness: when-needed makes a missed run again with κ, then with κ and the trunk
+    held, then with κ and δ (κ kept for the tries after it), then with soft terms; the first that
+    meets is kept and says what it took."""
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
     from allorules.runs.results import BiologyScalingResult
@@ -328,7 +328,8 @@ def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_
     calls.clear()
     meets = "on"                            # κ and δ together meet
     result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-    assert calls == [("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed"), ("shape", "on", "on")]
+    assert calls == [("shape", "when-needed", "when-needed"), ("shape", "on", "when-needed"),
+                     ("shape", "on", "when-needed"), ("shape", "on", "on")]        # κ; κ and the hold; κ and δ
     assert result.converged and "(length exponent 0.350" in result.warnings[0]
 
 

@@ -181,7 +181,7 @@ def test_automatically_labelled_animal_keeps_its_feet_down_through_a_run():
     """Turning a slanted leg upright after a step moves its foot; the feet are put back after
     the turn too. On the automatically labelled generated horse the feet ended 7–8 % of a leg
     apart at R = 2 without that second pass, 1.3 % with it. Run as the pipeline runs it (its
-    first run's trunk grows at 0.435, just beyond isometric's tolerance: the trunk's stretch
+    first run's trunk grows at 0.435, just beyond isometric's tolerance: a retry
     brings it back)."""
     from allorules.body import Body
     from allorules.plugins.registry import registry_for

@@ -222,8 +222,8 @@ LIMB_THICKNESS = ("off", "when-needed", "on")
 
 # solver.trunk_hold of a ruleset (allorules/runs/ruleset_run.py): the trunk's length (shoulder to
 # buttock) held at its isometric exponent by a soft term, with δ, the trunk's stretch, as its lever,
-# where no rule measures the trunk; "when-needed": only in a further run, after the runs with κ and δ
-# missed (runs/pipeline.py). Eq. 9 can meet every rule by drawing the trunk out (the bull 386).
+# where no rule measures the trunk; "when-needed": only in a further run, after the run with κ missed
+# and before δ free (runs/pipeline.py). Eq. 9 can meet every rule by drawing the trunk out (the bull 386).
 TRUNK_HOLD = ("when-needed", "on", "off")
 
 

@@ -291,17 +291,17 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
 
     1. with ``solver.limb_thickness: when-needed`` (the default), the run is made again with κ, the
        limbs' thickness, as one more variable (:mod:`allorules.solve.limb_thickness`), kept if it
-       converges and kept on for the tries after it (the pig 383 and the donkey 385 at ×2); then
-       with ``solver.trunk_stretch: when-needed`` (the default) and the per-axis transform, the run
-       is made again with δ, the trunk's stretch along the body, as one more variable, and kept
-       if it converges (which asks the trunk's length exponent to stay within
-       ``TRUNK_LENGTH_TOLERANCE`` of isometric; a warning says how much longer it grew). The rules can ask
-       the chest for more mass than its heart girth allows (the real horse at ×2: mass exponent
-       1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing what
-       no rule measures (docs/method.md, the trunk's length); then, with ``solver.trunk_hold:
-       when-needed`` (the default), again with the trunk's length held at its isometric exponent by
-       a soft term, δ its lever: Eq. 9 can meet every rule by drawing the trunk out (the bull 386
-       at ×2, trunk exponent 0.657 with δ free);
+       converges and kept on for the tries after it (the pig 383 and the donkey 385 at ×2); then,
+       with the per-axis transform, with δ, the trunk's stretch along the body: first with the
+       trunk's length held at its isometric exponent by a soft term, δ its lever
+       (``solver.trunk_hold: when-needed``), then with δ free (``solver.trunk_stretch:
+       when-needed``), each kept if it converges (which asks the trunk's length exponent to stay
+       within ``TRUNK_LENGTH_TOLERANCE`` of isometric; a warning says what it reached). The rules
+       can ask the chest for more mass than its heart girth allows (the real horse at ×2: mass
+       exponent 1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing
+       what no rule measures (docs/method.md, the trunk's length); held, the trunk grows no more
+       than that needs, where δ free lands anywhere the check allows (or beyond: the bull 386 at
+       ×2, 0.726);
     2. then with ``hold: soft`` (the appendages folded as that setting folds them), kept only if it
        meets every target *and* keeps every open region within the exponent tolerance of
        isometric: a soft run that meets the rules by letting the neck or the tail go (the real
@@ -319,8 +319,8 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return result
     missed = result.messages[0] if result.messages else "a target missed"
     tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
-    for variable, what in _more_variables(solver):
-        solver = replace(solver, **{variable: "on"})
+    for variable, what, settings in _more_variables(solver):
+        solver = replace(solver, **settings)
         log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with %s",
                     missed, what)
         again = run(replace(scaling.ruleset, solver=solver), body)
@@ -360,17 +360,22 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     return again
 
 
-def _more_variables(solver) -> list[tuple[str, str]]:
-    """The variables a missed run is tried again with, in order, each kept for the tries after it:
-    the limbs' thickness, then the trunk's stretch, then the trunk's length held isometric, δ its
-    lever (both along the forward axis: per-axis transform only; no hold when δ is off)."""
+def _more_variables(solver) -> list[tuple[str, str, dict[str, str]]]:
+    """The tries a missed run is made again with, in order, as (setting, what it is, the solver
+    settings it changes), each change kept for the tries after it: the limbs' thickness; then the
+    trunk's length held isometric, δ its lever; then δ free (the hold off). Both along the forward
+    axis: per-axis transform only; neither when δ is off."""
     more = []
     if solver.limb_thickness == "when-needed":
-        more.append(("limb_thickness", "the limbs' thickness as one more variable"))
-    if solver.trunk_stretch == "when-needed" and solver.transform == "per-axis":
-        more.append(("trunk_stretch", "the trunk's length along the body as one more variable"))
-    if solver.trunk_hold == "when-needed" and solver.trunk_stretch != "off" and solver.transform == "per-axis":
-        more.append(("trunk_hold", "the trunk's length held isometric by a soft term"))
+        more.append(("limb_thickness", "the limbs' thickness as one more variable", {"limb_thickness": "on"}))
+    if solver.trunk_stretch != "off" and solver.transform == "per-axis":
+        if solver.trunk_hold == "when-needed":
+            more.append(("trunk_hold", "the trunk's length held isometric by a soft term", {"trunk_hold": "on"}))
+        if solver.trunk_stretch == "when-needed":
+            free = {"trunk_stretch": "on"}
+            if solver.trunk_hold == "when-needed":
+                free["trunk_hold"] = "off"            # the hold had its own try before
+            more.append(("trunk_stretch", "the trunk's length along the body as one more variable", free))
     return more
 
 
