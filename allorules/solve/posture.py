@@ -85,9 +85,9 @@ class FootContact:
     down: np.ndarray
     feet: tuple[np.ndarray, ...]
     weights: np.ndarray          # (legs, vertices)
+    stretch: np.ndarray          # (legs, vertices)
+    pairs: np.ndarray            # (legs,) pair number of each leg
     heights: np.ndarray          # (legs,)
-    stretch: np.ndarray | None = None   # (legs, vertices); None: every leg moves rigidly
-    pairs: np.ndarray | None = None     # (legs,) pair number of each leg
 
     @classmethod
     def of(cls, body: Body) -> "FootContact | None":
@@ -120,7 +120,7 @@ class FootContact:
         feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)
         down = stance_down(limbs, body.frame)
         _, pairs = np.unique([limb.region for limb in limbs], return_inverse=True)
-        contact = cls(down, feet, weights, np.zeros(len(limbs)), _stretch_weights(limbs, len(body.vertices)), pairs)
+        contact = cls(down, feet, weights, _stretch_weights(limbs, len(body.vertices)), pairs, np.zeros(len(limbs)))
         return replace(contact, heights=contact.foot_heights(body.vertices))
 
     def foot_heights(self, vertices: np.ndarray) -> np.ndarray:
@@ -136,12 +136,9 @@ class FootContact:
         sum to zero, so the body does not sink."""
         shift = self.foot_heights(vertices) - scale * self.heights
         rigid = shift.copy()
-        if self.stretch is not None:
-            for pair in np.unique(self.pairs):
-                rigid[self.pairs == pair] = shift[self.pairs == pair].mean()
-        moved = self.weights.T @ rigid
-        if self.stretch is not None:
-            moved = moved + self.stretch.T @ (shift - rigid)
+        for pair in np.unique(self.pairs):
+            rigid[self.pairs == pair] = shift[self.pairs == pair].mean()
+        moved = self.weights.T @ rigid + self.stretch.T @ (shift - rigid)
         return vertices + np.outer(moved, self.down)
 
 
