@@ -135,9 +135,7 @@ class FootContact:
         the junction: x' = x + (Σ_k w_k(x) δ_P(k) + Σ_k t_k(x) (δ_k − δ_P(k))) · down. The shifts
         sum to zero, so the body does not sink."""
         shift = self.foot_heights(vertices) - scale * self.heights
-        rigid = shift.copy()
-        for pair in np.unique(self.pairs):
-            rigid[self.pairs == pair] = shift[self.pairs == pair].mean()
+        rigid = (np.bincount(self.pairs, shift) / np.bincount(self.pairs))[self.pairs]     # δ_P(k)
         moved = self.weights.T @ rigid + self.stretch.T @ (shift - rigid)
         return vertices + np.outer(moved, self.down)
 
