@@ -171,6 +171,8 @@ def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, mo
     refused = _run(animal, registry, quadruped, 2.0)
     assert not refused.converged
     assert any("no rule asks for it" in message for message in refused.messages), refused.messages
+    assert refused.missed == ("trunk",) and refused.as_dict()["missed"] == ["trunk"]     # what the retries read
+    assert plain.missed == ()
     path = tmp_path / "long-chest.yaml"
     path.write_text(textwrap.dedent("""\
         name: long-chest

@@ -333,6 +333,47 @@ def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_
     assert result.converged and "(length exponent 0.350" in result.warnings[0]
 
 
+def test_a_run_that_missed_only_the_trunk_tries_the_hold_with_kappa_first(generated_horse, monkeypatch):
+    """A first run that met every target but the trunk's length (the real horse at ×2: 0.437) is
+    made again with κ and the trunk held together, then with κ alone, then with δ free; one that
+    missed a rule as well keeps the order κ, κ held, κ and δ free."""
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+    from allorules.runs.results import BiologyScalingResult
+    from allorules.solve.open_regions import OpenRegionOutcome
+
+    body = generated_horse.body()
+    calls = []
+
+    def fake(labelled, ruleset, ratio, **options):
+        solver = ruleset.solver
+        calls.append((solver.limb_thickness, solver.trunk_hold, solver.trunk_stretch))
+        converged = calls[-1] == meets
+        outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, 1 / 3, True, 0.02, ruleset.open_regions.hold)
+        missed = () if converged else first_missed
+        return BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=converged, missed=missed,
+                                    messages=["a miss"] * len(missed), open_regions=[outcome],
+                                    trunk_length_exponent=0.336 if converged else 0.437)
+
+    monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
+    scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0)
+    first = ("when-needed", "when-needed", "when-needed")
+    held, thick, free = ("on", "on", "when-needed"), ("on", "off", "when-needed"), ("on", "off", "on")
+    first_missed, meets = ("trunk",), held
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [first, held]
+    assert result.converged and "the limbs' thickness and the trunk's length held" in result.warnings[0]
+    calls.clear()
+    meets = free                                    # κ held misses, κ alone misses, δ free meets
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [first, held, thick, free] and result.converged
+    calls.clear()
+    first_missed, meets = ("rule", "trunk"), held
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [first, ("on", "when-needed", "when-needed"), held]      # κ, then κ held
+    assert result.converged
+
+
 def test_every_held_appendage_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):
     """A zone spreads its opening's mismatch over the body beside it, never over an appendage held
     before it, and parts that share a vertex are one part: the wolf's ears and neck touch one another's zones

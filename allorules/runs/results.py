@@ -84,6 +84,12 @@ CONSTRAINT_TOLERANCE = 0.02
 TRUNK_LENGTH_TOLERANCE = 0.1
 
 
+# The kinds of target a ruleset run can miss (BiologyScalingResult.missed): a rule's exponent, the
+# mass ratio, a constraint's residual, the trunk's length beyond TRUNK_LENGTH_TOLERANCE, and a
+# distorted output (allorules/measure/quality.py). What is tried next depends on it (runs/pipeline.py).
+MISSES = ("rule", "mass", "constraint", "trunk", "distorted")
+
+
 @dataclass
 class RulesetStep:
     """One step: what the solver chose and what the step did (fresh measurements of its output)."""
@@ -166,6 +172,7 @@ class BiologyScalingResult(ScalingResult):
     warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
     open_regions: list = field(default_factory=list)    # OpenRegionOutcome per open region and measure
     trunk_length_exponent: float | None = None   # the trunk's length over the run (checked unless a rule measures it)
+    missed: tuple[str, ...] = ()     # the kind of each target missed, in order: MISSES
 
     def details(self) -> dict:
         return {
@@ -178,6 +185,7 @@ class BiologyScalingResult(ScalingResult):
             "warnings": list(self.warnings),
             "open_regions": [outcome.as_dict() for outcome in self.open_regions],
             "trunk_length_exponent": self.trunk_length_exponent,
+            "missed": list(self.missed),
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE,
                            "trunk_length": TRUNK_LENGTH_TOLERANCE},
         }

@@ -457,7 +457,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     result.mass_ratio = measure(mass_term.measure, final, mass_term.region) / measure(mass_term.measure, initial, mass_term.region)
     result.stress_ratio = gauge.stress(final) / gauge.stress(initial) if gauge else None
     result.rules = []
-    messages = []
+    misses: list[tuple[str, str]] = []     # (kind of target, what was missed)
     log_ratio = math.log(ratio) if ratio != 1.0 else None
     for rule in ruleset.rules:
         before, after = measure(rule.measure, initial, rule.region), measure(rule.measure, final, rule.region)
@@ -465,9 +465,9 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         outcome = RuleOutcome(rule.id, rule.region, rule.measure, float(rule.exponent), before, after, achieved)
         result.rules.append(outcome)
         if abs(outcome.error) > EXPONENT_TOLERANCE:
-            messages.append(f"rule {rule.id!r} reached exponent {achieved:.3f}, target {rule.exponent:.3f}")
+            misses.append(("rule", f"rule {rule.id!r} reached exponent {achieved:.3f}, target {rule.exponent:.3f}"))
     if abs(result.mass_ratio / ratio - 1.0) > MASS_TOLERANCE:
-        messages.append(f"mass ratio {result.mass_ratio:.4f}, target {ratio:.4f}")
+        misses.append(("mass", f"mass ratio {result.mass_ratio:.4f}, target {ratio:.4f}"))
     context = ConstraintContext(initial, final, ratio, measure)
     result.constraints = {}
     for use in ruleset.constraints:
@@ -477,12 +477,15 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             key = use.name if len(values) == 1 else f"{use.name}:{name}"
             result.constraints[key] = float(residual)
             if not abs(residual) <= CONSTRAINT_TOLERANCE:
-                messages.append(f"constraint {key!r} is off by {100 * residual:+.1f}% over the run")
+                misses.append(("constraint", f"constraint {key!r} is off by {100 * residual:+.1f}% over the run"))
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
     if ratio != 1.0:
-        messages.extend(_check_trunk_length(result, initial, final, ruleset, stretched))
+        misses.extend(("trunk", message) for message in _check_trunk_length(result, initial, final, ruleset, stretched))
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
-        messages.extend(f"the output looks distorted ({problem})" for problem in distortions(initial, final.vertices))
+        misses.extend(("distorted", f"the output looks distorted ({problem})")
+                      for problem in distortions(initial, final.vertices))
+    messages = [message for _, message in misses]
+    result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
     result.messages.extend(messages)
     if messages:
