@@ -228,3 +228,36 @@ def test_real_camel_at_x2_keeps_its_tail_and_says_where_its_touching_knees_fold(
     assert any("turned inside out" in warning and "forelimbs" in warning for warning in result.warnings)
     tail = {outcome.measure: outcome for outcome in result.open_regions if outcome.region == "tail"}
     assert tail["length"].hold == "shape" and tail["length"].met and tail["mass"].met
+
+
+def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
+    """The Princeton horse 382's foreleg meets the chest along a slanted rim (the armpit) that
+    spans a quarter of the leg's field. The foot contact's stretch and the turn back upright move
+    the leg and not the body, so both must leave every rim vertex where it is: risen from the
+    field's lowest value, the stretch weighed 0.48 on part of that rim and 0 on the chest beside
+    it, and the chest creased along the foreleg's top at ×2 (19 flipped faces)."""
+    from scipy.spatial.transform import Rotation
+
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+    from allorules.solve.posture import _limbs
+
+    prepared = pipeline.prepare(shared_meshes / "psb-fourleg" / "382.off")
+    body = pipeline.label_working(prepared, pipeline.working(prepared), registry=registry_for(None),
+                                  regions=pipeline.wanted_regions(load_ruleset("quadruped")))
+    limbs = [limb for limb in _limbs(body) if limb.sections]
+    contact = FootContact.of(body)
+    slanted = 0
+    for k, limb in enumerate(limbs):
+        rim = limb.mesh.vertex_index[limb.junction_loop.vertex_ids]
+        spread = np.ptp(limb.field[limb.junction_loop.vertex_ids]) / np.ptp(limb.field)
+        slanted += spread > 0.2
+        assert np.all(contact.stretch[k, rim] == 0.0), limb.region
+        leaning = body.vertices.copy()
+        index = limb.mesh.vertex_index
+        turn = Rotation.from_euler("z", 5, degrees=True).as_matrix()
+        leaning[index] = (leaning[index] - limb.junction) @ turn.T + limb.junction
+        restored = restore_limb_axes(body, body.with_vertices(leaning))
+        np.testing.assert_allclose(restored[rim], leaning[rim], atol=1e-12)
+    assert slanted >= 1            # the case this guards: a rim spread over a fifth of a leg's field

@@ -93,6 +93,16 @@ class Limb:
     junction_loop: Loop | None = None   # the junction's open boundary (None: the field's lowest vertex)
 
     @property
+    def clear_level(self) -> float:
+        """The field level from which the limb is clear of its junction: the highest field value on
+        the junction loop, which a slanted junction (an armpit, a groin) spreads over a range of
+        levels (the Princeton horse 382's foreleg: a quarter of its length), else the field's lowest.
+        Whatever moves the leg and not the body must be 0 up to here, or it tears the rim."""
+        if self.junction_loop is not None and self.junction_loop.vertex_ids is not None:
+            return float(self.field[self.junction_loop.vertex_ids].max())
+        return float(self.field.min())
+
+    @property
     def centroids(self) -> np.ndarray:
         """The centroids of the cross-sections, junction to tip, (sections, 3): the leg's centre line."""
         return np.array([section.loop.centroid for section in self.sections])

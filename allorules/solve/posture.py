@@ -141,12 +141,15 @@ class FootContact:
 
 
 def _stretch_weights(limbs: list, count: int) -> np.ndarray:
-    """Per leg, 0 at its junction rising linearly along its field to 1 at its foot (the leg
-    beyond its last section), 0 off the leg; a vertex two legs share (knees that touch) takes
-    the mean of the two."""
+    """Per leg, 0 up to where it is clear of its junction (:attr:`Limb.clear_level`: every vertex
+    of the junction's rim stays with the body) rising linearly along its field to 1 at its foot
+    (the leg beyond its last section), 0 off the leg; a vertex two legs share (knees that touch)
+    takes the mean of the two. Rising from the field's lowest value instead, the weights were
+    0.48 on part of the Princeton horse 382's slanted foreleg rim and 0 beside it: its chest
+    creased along the foreleg's top at ×2 (19 flipped faces, 0.43 of the input's dihedral angles)."""
     stretch = np.zeros((len(limbs), count))
     for k, limb in enumerate(limbs):
-        lowest, foot = float(limb.field.min()), float(limb.levels[-1])
+        lowest, foot = limb.clear_level, float(limb.levels[-1])
         rise = np.clip((limb.field - lowest) / (foot - lowest), 0.0, 1.0) if foot > lowest else np.ones(len(limb.field))
         stretch[k, limb.mesh.vertex_index] = rise
     shared = (stretch > 0).sum(axis=0) > 1
@@ -219,9 +222,10 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
 
     Per limb part: R = the smallest rotation taking its axis on ``moved`` (junction centroid →
     foot tip) back to its axis on ``reference``; vertices turn by R about the junction,
-    x' = x + w·(J + R(x − J) − x), with w rising smoothly (smoothstep) from 0 at the junction to 1
-    at ``POSTURE_BLEND`` of the limb's length along its own field, so the shoulder stays joined to
-    the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
+    x' = x + w·(J + R(x − J) − x), with w rising smoothly (smoothstep) from 0 where the limb is
+    clear of its junction (:attr:`Limb.clear_level`) to 1 at ``POSTURE_BLEND`` of the limb's
+    length along its own field (or half that beyond where it is clear, if later), so the shoulder
+    stays joined to the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
     Bodies without limbs come back unchanged.
     """
     moves = []
@@ -234,8 +238,9 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
         if rotation is None:
             continue
         fractions = np.array([section.fraction for section in before.sections])
-        lowest = float(before.field.min())
-        blend_level = float(np.interp(POSTURE_BLEND, fractions, before.levels))
+        lowest = before.clear_level            # the junction's rim does not turn (it would tear)
+        clear = float(np.interp(lowest, before.levels, fractions))
+        blend_level = float(np.interp(max(POSTURE_BLEND, clear + POSTURE_BLEND / 2), fractions, before.levels))
         if blend_level <= lowest:
             continue
         weight = smoothstep((before.field - lowest) / (blend_level - lowest))
