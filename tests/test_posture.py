@@ -260,4 +260,10 @@ def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
         leaning[index] = (leaning[index] - limb.junction) @ turn.T + limb.junction
         restored = restore_limb_axes(body, body.with_vertices(leaning))
         np.testing.assert_allclose(restored[rim], leaning[rim], atol=1e-12)
+        # how far along the leg each vertex is (κ's fade-in) rises from 0 on the rim without a step
+        # (it jumped from 0 to 0.25 at the slanted foreleg's first section)
+        _, along = limb.offsets_across()
+        edges = limb.mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        assert np.all(along[limb.junction_loop.vertex_ids] == 0.0)
+        assert np.abs(along[edges[:, 0]] - along[edges[:, 1]]).max() < 0.1, limb.region     # an edge's own rise: < 0.08
     assert slanted >= 1            # the case this guards: a rim spread over a fifth of a leg's field

@@ -118,7 +118,8 @@ class Limb:
 
     def offsets_across(self) -> tuple[np.ndarray, np.ndarray]:
         """Each part vertex's offset from the limb's centre line, across the line, and how far
-        along the limb it is (0 at the junction, 1 at the tip), as ((n, 3), (n,)).
+        along the limb it is (0 up to where it is clear of its junction's rim, then the share of the
+        length from there, 1 at the tip), as ((n, 3), (n,)).
 
         The centre line is the sections' centroids as a function of the field; a vertex's point on
         it is interpolated at the vertex's field value (held at the first or last section beyond
@@ -137,7 +138,15 @@ class Limb:
         along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), np.finfo(float).tiny)
         offsets = self.mesh.vertices - on_line
         offsets -= np.einsum("ij,ij->i", offsets, along)[:, None] * along
-        return offsets, np.interp(self.field, levels, fractions, left=0.0, right=1.0)
+        # 0 up to where the limb is clear of its junction's rim, then the share of the length left
+        # (a slanted rim can end a quarter of the way down; counted from the junction's centroid,
+        # the share jumped by that much across the rim's last edges and tore the shoulder)
+        clear = float(np.interp(self.clear_level, levels, fractions))
+        tip = max(float(self.field.max()), float(levels[-1]) + 1e-12)
+        share = np.interp(self.field, np.append(levels, tip), np.append(fractions, 1.0))    # 1 at the tip
+        along = np.clip((share - clear) / (1.0 - clear), 0.0, 1.0) if clear < 1.0 else np.zeros(count)
+        along[self.field <= self.clear_level] = 0.0
+        return offsets, along
 
     def section_at(self, fraction: float) -> Section:
         """The cross-section at ``fraction`` of the limb's length (0 junction, 1 tip), recomputed exactly."""
