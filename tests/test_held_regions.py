@@ -335,8 +335,9 @@ def test_limb_thickness_when_needed_is_tried_before_the_trunks_stretch_and_kept_
 
 def test_a_run_that_missed_only_the_trunk_tries_the_hold_with_kappa_first(generated_horse, monkeypatch):
     """A first run that met every target but the trunk's length (the real horse at ×2: 0.437) is
-    made again with κ and the trunk held together, then with κ alone, then with δ free; one that
-    missed a rule as well keeps the order κ, κ held, κ and δ free."""
+    made again with κ and the trunk held together, then held alone (the Princeton horse 382 at
+    ×0.5: lumpy with κ, converged without), then with κ alone, then with δ free; one that missed a
+    rule as well keeps the order κ, κ held, κ and δ free."""
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
     from allorules.runs.results import BiologyScalingResult
@@ -358,19 +359,25 @@ def test_a_run_that_missed_only_the_trunk_tries_the_hold_with_kappa_first(genera
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
     scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0)
     first = ("when-needed", "when-needed", "when-needed")
-    held, thick, free = ("on", "on", "when-needed"), ("on", "off", "when-needed"), ("on", "off", "on")
-    first_missed, meets = ("trunk",), held
+    both, held, thick, free = (("on", "on", "when-needed"), ("off", "on", "when-needed"), ("on", "off", "when-needed"),
+                               ("on", "off", "on"))
+    first_missed, meets = ("trunk",), both
     result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-    assert calls == [first, held]
+    assert calls == [first, both]
     assert result.converged and "the limbs' thickness and the trunk's length held" in result.warnings[0]
     calls.clear()
-    meets = free                                    # κ held misses, κ alone misses, δ free meets
+    meets = held
     result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-    assert calls == [first, held, thick, free] and result.converged
+    assert calls == [first, both, held] and result.converged
+    assert result.warnings[0].startswith("the open regions held by their shape, the rules were met only with the trunk's")
     calls.clear()
-    first_missed, meets = ("rule", "trunk"), held
+    meets = free                                    # κ held, held, κ alone miss; δ free meets
     result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
-    assert calls == [first, ("on", "when-needed", "when-needed"), held]      # κ, then κ held
+    assert calls == [first, both, held, thick, free] and result.converged
+    calls.clear()
+    first_missed, meets = ("rule", "trunk"), both
+    result = pipeline.scale(body, scaling, registry=pipeline.registry_for(None))
+    assert calls == [first, ("on", "when-needed", "when-needed"), both]      # κ, then κ held
     assert result.converged
 
 

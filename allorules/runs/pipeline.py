@@ -301,8 +301,8 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
        exponent 1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing
        what no rule measures (docs/method.md, the trunk's length); held, the trunk grows no more
        than that needs, where δ free lands anywhere the check allows (or beyond: the bull 386 at
-       ×2, 0.726). A run whose one miss is the trunk's length tries κ and the hold together, then κ
-       alone, then δ free (:func:`_more_variables`);
+       ×2, 0.726). A run whose one miss is the trunk's length tries κ and the hold together, then
+       the hold alone, then κ alone, then δ free (:func:`_more_variables`);
     2. then with ``hold: soft`` (the appendages folded as that setting folds them), kept only if it
        meets every target *and* keeps every open region within the exponent tolerance of
        isometric: a soft run that meets the rules by letting the neck or the tail go (the real
@@ -368,19 +368,23 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     axis: per-axis transform only; neither when δ is off.
 
     A run that met every target but the trunk's length (``missed``, see
-    :data:`allorules.runs.results.MISSES`) starts with κ and the hold together, then κ alone: κ
-    alone rarely moves the trunk (the real horse at ×2: 0.437 with and without it), and the hold
-    without κ lets it go further (0.424, where κ held gives 0.336), so the pair is what converges,
-    one run sooner."""
+    :data:`allorules.runs.results.MISSES`) starts with κ and the hold together, then the hold
+    alone, then κ alone: κ alone rarely moves the trunk (the real horse at ×2: 0.437 with it and
+    without), and the hold without κ lets the horse's trunk go further (0.424, where κ held gives
+    0.336), so the pair comes first, one run sooner than before; held with κ the Princeton horse
+    382 at ×0.5 came out lumpy, held alone it converges."""
     thickness = {"limb_thickness": "on"} if solver.limb_thickness == "when-needed" else {}
     holding = solver.trunk_stretch != "off" and solver.transform == "per-axis" and solver.trunk_hold == "when-needed"
     more = []
     if holding and missed == ("trunk",):
-        what = "the limbs' thickness and the trunk's length held isometric by a soft term" if thickness else \
-            "the trunk's length held isometric by a soft term"
-        more.append(("trunk_hold", what, {**thickness, "trunk_hold": "on"}))
+        held = ("trunk_hold", "the trunk's length held isometric by a soft term", {"trunk_hold": "on"})
         if thickness:
-            more.append(("limb_thickness", "the limbs' thickness as one more variable", {"trunk_hold": "off"}))
+            more.append(("trunk_hold", "the limbs' thickness and the trunk's length held isometric by a soft term",
+                         {**thickness, "trunk_hold": "on"}))
+            held = (held[0], held[1], {"limb_thickness": "off", "trunk_hold": "on"})
+        more.append(held)
+        if thickness:
+            more.append(("limb_thickness", "the limbs' thickness as one more variable", {**thickness, "trunk_hold": "off"}))
     else:
         if thickness:
             more.append(("limb_thickness", "the limbs' thickness as one more variable", thickness))
