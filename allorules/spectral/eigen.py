@@ -40,7 +40,11 @@ import threadpoolctl
 log = logging.getLogger(__name__)
 
 DENSE_LIMIT = 2500
-FEW_DENSE_LIMIT = 600       # few_smallest_eigenpairs: dense LAPACK up to this many vertices
+# few_smallest_eigenpairs: dense LAPACK up to this many vertices. A leg of 494 vertices took 0.016 s
+# dense and 0.006 s by shift-invert Lanczos on an idle machine; beside another numpy job the dense
+# solve slowed to 0.08-0.44 s (BLAS threads contending) while Lanczos stayed at 0.011 s, and the
+# parts' fields made 38 % of a whole run so (docs/benchmarks.md).
+FEW_DENSE_LIMIT = 200
 BAND_BLAS_THREADS = 1
 BAND_SIZE = 48                    # pairs a band aims for (docs/benchmarks.md)
 
