@@ -349,7 +349,10 @@ class QualityReport:
 # The donkey 385 at ×0.5, 0.43, sagged into a creased pot belly with bulging hips: the limit, once
 # 0.5, is 0.4.
 ROUGHNESS_SHARE_LIMIT = 0.4      # RMS change of the dihedral angles over the input's own RMS dihedral angle
-FEATURE_SHAPE_LIMIT = 0.3        # a small feature's shape change, in units of its size
+# The Princeton horse 382 at ×2 once converged with narrow, pointed hooves at 0.29 (κ and the trunk
+# held); the looks-right outputs of the gallery measure up to 0.22 (the low-poly bull 386's hooves of
+# 15-20 vertices), the rest up to 0.17: the limit, once 0.3, is 0.25.
+FEATURE_SHAPE_LIMIT = 0.25       # a small feature's shape change, in units of its size
 
 
 def distortions(before: Body, after: np.ndarray) -> list[str]:
