@@ -371,18 +371,17 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     :data:`allorules.runs.results.MISSES`) starts with κ and the hold together, then the hold
     alone, then κ alone: κ alone rarely moves the trunk (the real horse at ×2: 0.437 with it and
     without), and the hold without κ lets the horse's trunk go further (0.424, where κ held gives
-    0.336), so the pair comes first, one run sooner than before; held with κ the Princeton horse
-    382 at ×0.5 came out lumpy, held alone it converges."""
+    0.336), so the pair comes first; held with κ the Princeton horse 382 at ×0.5 came out lumpy,
+    held alone it converges."""
     thickness = {"limb_thickness": "on"} if solver.limb_thickness == "when-needed" else {}
     holding = solver.trunk_stretch != "off" and solver.transform == "per-axis" and solver.trunk_hold == "when-needed"
     more = []
     if holding and missed == ("trunk",):
-        held = ("trunk_hold", "the trunk's length held isometric by a soft term", {"trunk_hold": "on"})
         if thickness:
             more.append(("trunk_hold", "the limbs' thickness and the trunk's length held isometric by a soft term",
                          {**thickness, "trunk_hold": "on"}))
-            held = (held[0], held[1], {"limb_thickness": "off", "trunk_hold": "on"})
-        more.append(held)
+        more.append(("trunk_hold", "the trunk's length held isometric by a soft term",
+                     {"limb_thickness": "off", "trunk_hold": "on"} if thickness else {"trunk_hold": "on"}))
         if thickness:
             more.append(("limb_thickness", "the limbs' thickness as one more variable", {**thickness, "trunk_hold": "off"}))
     else:
