@@ -103,6 +103,11 @@ class Limb:
         return float(self.field.min())
 
     @property
+    def clear_fraction(self) -> float:
+        """The share of the limb's length (from the junction's centroid) at :attr:`clear_level`."""
+        return float(np.interp(self.clear_level, self.levels, [section.fraction for section in self.sections]))
+
+    @property
     def centroids(self) -> np.ndarray:
         """The centroids of the cross-sections, junction to tip, (sections, 3): the leg's centre line."""
         return np.array([section.loop.centroid for section in self.sections])
@@ -141,11 +146,10 @@ class Limb:
         # 0 up to where the limb is clear of its junction's rim, then the share of the length left
         # (a slanted rim can end a quarter of the way down; counted from the junction's centroid,
         # the share jumped by that much across the rim's last edges and tore the shoulder)
-        clear = float(np.interp(self.clear_level, levels, fractions))
+        clear = self.clear_fraction
         tip = max(float(self.field.max()), float(levels[-1]) + 1e-12)
         share = np.interp(self.field, np.append(levels, tip), np.append(fractions, 1.0))    # 1 at the tip
         along = np.clip((share - clear) / (1.0 - clear), 0.0, 1.0) if clear < 1.0 else np.zeros(count)
-        along[self.field <= self.clear_level] = 0.0
         return offsets, along
 
     def section_at(self, fraction: float) -> Section:

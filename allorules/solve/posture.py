@@ -239,8 +239,8 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
             continue
         fractions = np.array([section.fraction for section in before.sections])
         lowest = before.clear_level            # the junction's rim does not turn (it would tear)
-        clear = float(np.interp(lowest, before.levels, fractions))
-        blend_level = float(np.interp(max(POSTURE_BLEND, clear + POSTURE_BLEND / 2), fractions, before.levels))
+        blend_level = float(np.interp(max(POSTURE_BLEND, before.clear_fraction + POSTURE_BLEND / 2), fractions,
+                                      before.levels))
         if blend_level <= lowest:
             continue
         weight = smoothstep((before.field - lowest) / (blend_level - lowest))
