@@ -63,7 +63,6 @@ from allorules.runs.results import (
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
 from allorules.solve.energy import (
-    RESIDUAL_TOLERANCE,
     Term,
     cached_measure,
     energy_terms,
@@ -219,7 +218,7 @@ def scale_with_ruleset(
 
         try:
             solution = solve(_capped(ruleset) if reused else ruleset, basis)
-            if reused and not _solved(solution):
+            if reused and not solution.met:
                 log.debug("step %d: not solved on a basis %d steps old (%s); recomputing it", index + 1, basis_age,
                           solution.status)
                 before = time.perf_counter()
@@ -370,11 +369,6 @@ def _capped(ruleset):
     """The ruleset with its trials per step capped at REUSED_BASIS_TRIALS (a step on a reused basis)."""
     trials = min(int(ruleset.solver.max_evaluations), REUSED_BASIS_TRIALS)
     return replace(ruleset, solver=replace(ruleset.solver, max_evaluations=trials))
-
-
-def _solved(solution) -> bool:
-    """Whether a step met every target within the solver's tolerance (RESIDUAL_TOLERANCE)."""
-    return max(map(abs, solution.residuals.values()), default=0.0) <= RESIDUAL_TOLERANCE
 
 
 def _carried_misses(terms, anchors: dict[str, float], reached: float, current: Body, measure) -> dict[str, float]:

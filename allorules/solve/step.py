@@ -62,7 +62,8 @@ Bounds: ``scale_bounds`` on s and ``alpha_bounds`` on every α (stage 2 clips to
 penalises leaving them). Gauss–Newton stops once the misfit is below ``ENERGY_TARGET`` (10⁻⁹:
 every relative residual below ~3·10⁻⁵); the Jacobian is recomputed and nlopt called only while
 some residual is above ``RESIDUAL_TOLERANCE`` (5·10⁻⁴, i.e. at most 0.005 of exponent per 10 %
-step), and nlopt stops as soon as none is. Some measures are not smooth at the 10⁻³ level (the
+step; a soft open-region term of weight w: 5·10⁻⁴/√w, see :func:`allorules.solve.energy.residual_tolerance`),
+and nlopt stops as soon as none is. Some measures are not smooth at the 10⁻³ level (the
 chest girth is the largest of several loops, filtered by position, so it jumps when a loop enters
 or leaves); chasing residuals below that made nlopt wander to large, opposing α that met the
 numbers with a bent body. Trials whose exponent turns
@@ -103,22 +104,6 @@ TRUNK_STRETCH_BOUNDS = (-0.5, 0.5)   # δ per step (solver.trunk_stretch); the r
 HELD_SIZE_BOUNDS = (-0.2, 0.2)      # a ruled held region's size − 1, from its rule's similarity (solver.ruled_shape)
 
 
-# ---------------------------------------------------------------------------------------------
-# Terms
-
-
-# ---------------------------------------------------------------------------------------------
-# The step's transform
-
-
-# ---------------------------------------------------------------------------------------------
-# Energy
-
-
-# ---------------------------------------------------------------------------------------------
-# The solve
-
-
 @dataclass
 class StepSolution:
     """What one step's solve reached (measured on its best trial mesh)."""
@@ -137,6 +122,7 @@ class StepSolution:
     trunk_stretch: float | None = None                              # δ, when solver.trunk_stretch is on
     limb_thickness: float | None = None                             # κ, when solver.limb_thickness is on
     sizes: dict[str, float] = field(default_factory=dict)           # each region held at its rule's size: its size − 1
+    met: bool = False                                               # every residual within its tolerance (StepEnergy.met)
 
     @property
     def variables(self) -> np.ndarray:
@@ -327,6 +313,7 @@ def solve_step(
         trunk_stretch=named.trunk_stretch,
         limb_thickness=named.limb_thickness,
         sizes=named.sizes,
+        met=energy.met(best.residuals),
     )
 
 
