@@ -175,3 +175,30 @@ def test_rule_checks_and_report_are_json_ready(generated_horse):
     assert data["flipped_faces"]["count"] == 0 and data["self_intersections"]["pairs"] == 0
     assert data["worst_feature_change"] < 1e-9 and data["roughness"]["rms_degrees"] < 1e-6
     assert all(abs(leg["tilt_degrees"]) < 1e-6 for leg in data["legs"]) and len(data["legs"]) == 4
+
+
+def test_the_report_counts_the_flipped_faces_of_the_mesh_written(generated_horse, tmp_path):
+    """Quality is measured on the working mesh; the faces written are the user's, carried from it,
+    and the report counts their flips too (a transfer can fold what the working mesh did not)."""
+    import dataclasses
+
+    from allorules.runs import pipeline
+
+    path = tmp_path / "horse.obj"
+    trimesh.Trimesh(generated_horse.body().vertices, generated_horse.body().faces, process=False).export(path)
+    run = pipeline.run(path, pipeline.GlobalScaling(2.0), modes=30, working_vertices=2000)
+    assert run.working.binding is not None                     # a 4,000-vertex horse on a 2,000-vertex working mesh
+    quality = run.quality()
+    assert quality.flipped.count == 0 and quality.written_flipped.count == 0
+    assert "0 in the mesh written" in quality.summary()
+    assert quality.as_dict()["written_flipped_faces"] == {"count": 0, "regions": {}}
+    # fold the working mesh's head through itself: the written mesh's faces there flip with it
+    folded = run.result.body.vertices.copy()
+    head = run.body.region_mask("head")
+    centre = folded[head].mean(axis=0)
+    folded[head] = centre - (folded[head] - centre)            # a point reflection turns every head face
+    run = dataclasses.replace(run, result=dataclasses.replace(run.result, body=run.result.body.with_vertices(folded)),
+                              _quality=None, _carried=None)
+    quality = run.quality()
+    assert quality.written_flipped.count > 0 and set(quality.written_flipped.regions) >= {"head"}
+    assert quality.written_flipped.regions["head"] > 0.5 * quality.written_flipped.count

@@ -306,6 +306,9 @@ class QualityReport:
     features: list = field(default_factory=list)
     legs: list[LegStance] = field(default_factory=list)
     rules: list[RuleCheck] = field(default_factory=list)
+    # The faces turned inside out in the mesh written: the user's own faces, when the run worked on a
+    # working mesh (everything above is measured there); None when the two are one mesh.
+    written_flipped: FlippedFaces | None = None
 
     @property
     def worst_feature_change(self) -> float:
@@ -314,6 +317,8 @@ class QualityReport:
     def summary(self) -> str:
         """The terminal's line: what an artist would look for, in numbers."""
         parts = [f"{self.flipped.count} flipped faces"]
+        if self.written_flipped is not None:
+            parts[0] += f" on the working mesh ({self.written_flipped.count} in the mesh written)"
         if self.intersections is not None:
             new = self.intersections.new_pairs
             parts.append(f"{self.intersections.pairs if new is None else new} {'new ' if new is not None else ''}"
@@ -331,6 +336,7 @@ class QualityReport:
     def as_dict(self) -> dict:
         return {
             "flipped_faces": self.flipped.as_dict(),
+            "written_flipped_faces": None if self.written_flipped is None else self.written_flipped.as_dict(),
             "self_intersections": None if self.intersections is None else self.intersections.as_dict(),
             "roughness": self.roughness.as_dict(),
             "small_features": [change.as_dict() for change in self.features],

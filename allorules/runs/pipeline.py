@@ -33,7 +33,7 @@ from allorules.body import Body, Labelling
 from allorules.errors import MeasurementError, SegmentationError
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
-from allorules.measure.quality import QualityReport, quality_report
+from allorules.measure.quality import QualityReport, flipped_faces, quality_report
 from allorules.measure.stress import SectionChoice, peak_stress
 from allorules.mesh.geometry import count_flipped_faces, vertex_areas
 from allorules.mesh.repair import PreparedMesh, prepare_mesh
@@ -431,6 +431,7 @@ class Run:
     placement: str = "ground"            # how the output was placed (see :func:`place`)
     working: Working | None = None       # None: the prepared body itself
     _quality: QualityReport | None = field(default=None, repr=False)
+    _carried: tuple[Body, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:
@@ -440,7 +441,11 @@ class Run:
         """The scaled positions of the user's prepared body (carried from the working mesh)."""
         if self.working is None:
             return self.result.body.vertices
-        return self.working.to_user(self.body.vertices, self.result.body.vertices, self.prepared.vertices)
+        # carried once per result body (the report's quality and the file written both need it)
+        if self._carried is None or self._carried[0] is not self.result.body:
+            self._carried = (self.result.body, self.working.to_user(self.body.vertices, self.result.body.vertices,
+                                                                    self.prepared.vertices))
+        return self._carried[1]
 
     def output_vertices(self) -> np.ndarray:
         """The scaled positions of every vertex of the input, in the input's own order."""
@@ -471,6 +476,10 @@ class Run:
         if self._quality is None:
             self._quality = quality_report(self.body, self.result.body.vertices, rules=getattr(self.result, "rules", None),
                                            tolerance=EXPONENT_TOLERANCE)
+            if self.working is not None and self.working.binding is not None:
+                # measured on the working mesh; the faces written are the user's, counted there too
+                user = self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces))
+                self._quality.written_flipped = flipped_faces(user, self.body_vertices())
         return self._quality
 
 
