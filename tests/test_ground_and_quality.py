@@ -202,3 +202,22 @@ def test_the_report_counts_the_flipped_faces_of_the_mesh_written(generated_horse
     quality = run.quality()
     assert quality.written_flipped.count > 0 and set(quality.written_flipped.regions) >= {"head"}
     assert quality.written_flipped.regions["head"] > 0.5 * quality.written_flipped.count
+
+
+def test_a_leg_swollen_along_part_of_its_length_is_measured(generated_horse):
+    """girth_spread: 0 under a similarity; a leg whose middle alone grows 40 % across measures about that."""
+    from allorules.measure.limbs import limb_sections, posture_change
+    from allorules.mesh.geometry import smoothstep
+
+    body = generated_horse.body()
+    turned, _ = _turn(body.vertices)
+    moved = posture_change(body, body.with_vertices(turned))
+    assert moved and all(change["girth_spread"] < 1e-6 for change in moved.values())
+    limb = limb_sections(body, "forelimbs")[0]
+    offsets, along = limb.offsets_across()
+    swollen = body.vertices.copy()
+    bump = smoothstep((along - 0.3) / 0.1) * (1.0 - smoothstep((along - 0.6) / 0.1))     # 1 from 0.4 to 0.6
+    swollen[limb.mesh.vertex_index] += 0.4 * bump[:, None] * offsets
+    change = posture_change(body, body.with_vertices(swollen))
+    assert change["forelimbs[0]"]["girth_spread"] == pytest.approx(0.4, abs=0.1)
+    assert all(change[leg]["girth_spread"] < 1e-6 for leg in change if leg != "forelimbs[0]")

@@ -308,8 +308,10 @@ def format_table(result) -> str:
         tilt = max(change["tilt_degrees"] for change in result.posture.values())
         lift = max(change["foot_lift"] for change in result.posture.values())
         bend = max(change["bend"] for change in result.posture.values())
+        spread = max(change.get("girth_spread", 0.0) for change in result.posture.values())
         lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length, bow added up to "
-                     f"{100 * bend:+.1f}% of a leg's length (not rules; see the report's posture)")
+                     f"{100 * bend:+.1f}% of a leg's length, girth changed unevenly along a leg by up to "
+                     f"{100 * spread:.0f}% (not rules; see the report's posture)")
     return "\n".join(lines)
 
 

@@ -254,10 +254,11 @@ class LegStance:
     tilt_degrees: float
     foot_lift: float        # in leg lengths (height above the lowest foot)
     bend: float             # change of the bow, in leg lengths
+    girth_spread: float     # how unevenly its girth changed along it (limbs.girth_spread)
 
     def as_dict(self) -> dict:
         return {"leg": self.leg, "tilt_degrees": float(self.tilt_degrees), "foot_lift": float(self.foot_lift),
-                "bend": float(self.bend)}
+                "bend": float(self.bend), "girth_spread": float(self.girth_spread)}
 
 
 def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
@@ -265,7 +266,8 @@ def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
     from allorules.measure.limbs import posture_change
 
     change = posture_change(before, before.with_vertices(np.asarray(after, dtype=float)))
-    return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"]) for leg, values in change.items()]
+    return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"], values["girth_spread"])
+            for leg, values in change.items()]
 
 
 @dataclass(frozen=True)
