@@ -221,3 +221,10 @@ def test_a_leg_swollen_along_part_of_its_length_is_measured(generated_horse):
     change = posture_change(body, body.with_vertices(swollen))
     assert change["forelimbs[0]"]["girth_spread"] == pytest.approx(0.4, abs=0.1)
     assert all(change[leg]["girth_spread"] < 1e-6 for leg in change if leg != "forelimbs[0]")
+    # a run's legs beyond the limit make it look distorted (ruleset_run._finish), one line per leg
+    from allorules.measure.quality import LEG_GIRTH_SPREAD_LIMIT, swollen_legs
+
+    assert swollen_legs(change) == []
+    swollen[limb.mesh.vertex_index] += 2.0 * bump[:, None] * offsets                  # 2.4 × across in the middle
+    lines = swollen_legs(posture_change(body, body.with_vertices(swollen)))
+    assert len(lines) == 1 and lines[0].startswith("forelimbs[0] swelled") and f"limit {100 * LEG_GIRTH_SPREAD_LIMIT:.0f}%" in lines[0]

@@ -17,7 +17,7 @@ JSON-ready dataclass (``as_dict()``), and :func:`quality_report`, which gathers 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -361,6 +361,20 @@ ROUGHNESS_SHARE_LIMIT = 0.4      # RMS change of the dihedral angles over the in
 # held); the looks-right outputs of the gallery measure up to 0.22 (the low-poly bull 386's hooves of
 # 15-20 vertices), the rest up to 0.17: the limit, once 0.3, is 0.25.
 FEATURE_SHAPE_LIMIT = 0.25       # a small feature's shape change, in units of its size
+
+
+# A leg whose girth changed unevenly along it (limbs.girth_spread) is swollen: the Princeton pig 383
+# at ×0.5 converged with club legs at 1.3-1.45 (κ 0.3 in a step); outputs that look right measure
+# up to 0.38, the real horse at ×2 with its broad hooves 0.4-0.65.
+LEG_GIRTH_SPREAD_LIMIT = 0.8
+
+
+def swollen_legs(posture: Mapping[str, Mapping[str, float]]) -> list[str]:
+    """Each leg of a run's ``posture`` (:func:`allorules.measure.limbs.posture_change`) whose girth
+    changed more unevenly along it than LEG_GIRTH_SPREAD_LIMIT; one line each, empty when none."""
+    return [f"{leg} swelled along part of its length: its girth changed unevenly by {100 * change['girth_spread']:.0f}% "
+            f"(limit {100 * LEG_GIRTH_SPREAD_LIMIT:.0f}%)"
+            for leg, change in posture.items() if change.get("girth_spread", 0.0) > LEG_GIRTH_SPREAD_LIMIT]
 
 
 def distortions(before: Body, after: np.ndarray) -> list[str]:

@@ -47,7 +47,7 @@ from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
 from allorules.measure.length import trunk_length
 from allorules.measure.parts import TORSO_REGIONS
-from allorules.measure.quality import distortions, flipped_faces
+from allorules.measure.quality import distortions, flipped_faces, swollen_legs
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.specs import ConstraintContext
@@ -477,7 +477,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         misses.extend(("trunk", message) for message in _check_trunk_length(result, initial, final, ruleset, stretched))
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         misses.extend(("distorted", f"the output looks distorted ({problem})")
-                      for problem in distortions(initial, final.vertices))
+                      for problem in distortions(initial, final.vertices) + swollen_legs(result.posture or {}))
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
