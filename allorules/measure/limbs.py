@@ -265,8 +265,9 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
     centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
     lowest foot, as a share of the leg's length; ``bend``, the change of :func:`limb_bend` (a leg
-    that bows); ``girth_spread``, :func:`girth_spread` (a leg swollen along part of its length). Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for;
-    the report shows it because an allometric edit can meet every rule yet leave the animal
+    that bows); ``girth_spread``, :func:`girth_spread` (a leg swollen along part of its length).
+    Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for; the report
+    shows it because an allometric edit can meet every rule yet leave the animal
     leaning or its legs bent.
     """
     limbs_before = [limb for region in LIMB_REGIONS if before.has_region(region) for limb in limb_sections(before, region)]

@@ -24,7 +24,7 @@ RESIDUAL_TOLERANCE = 5e-4     # a step whose every |residual| is below this need
 # *weighted* residual √w·|residual| is below RESIDUAL_TOLERANCE, i.e. |residual| ≤ RESIDUAL_TOLERANCE/√w:
 # it trades against the rules, and where it cannot be met with them the solve stops with the rules
 # met instead of searching its 400 trials for the last 0.1 % of it (the real horse at ×2, trunk held:
-# steps 5–8 took 1,229 trials for trunk residuals of 0.2–0.5 %). The run carries the miss forward.
+# steps 5–8 took 1,429 trials for trunk residuals of 0.2–0.5 %). The run carries the miss forward.
 ALPHA_RIDGE = 1e-6
 
 
