@@ -76,6 +76,11 @@ def _check_output(result, body):
     for change in report["posture"].values():
         assert 0.0 <= change["tilt_degrees"] < 90.0 and math.isfinite(change["foot_lift"]) and math.isfinite(change["bend"])
     assert set(posture_warnings(report["posture"])) <= set(report["warnings"])
+    # the section named is the one carrying the input's peak stress (it named the gauge's first band)
+    from allorules.measure.stress import load_bearing_section
+
+    peak = load_bearing_section(body)
+    assert (report["section"]["region"], report["section"]["fraction"]) == (peak.region, round(peak.section.fraction, 4))
     assert all(warning.startswith("open region") for warning in set(report["warnings"]) - set(posture_warnings(report["posture"])))
 
 

@@ -163,7 +163,7 @@ def scale_with_ruleset(
     gauge = _stress_gauge(initial, registry, section)
     measure = cached_measure(registry, {"stress": gauge.stress} if gauge else None)
     result = BiologyScalingResult(body=initial, ruleset=ruleset.name, target_mass_ratio=target,
-                                  section=gauge.describe() if gauge else None, transform=ruleset.solver.transform,
+                                  section=gauge.describe(initial.vertices) if gauge else None, transform=ruleset.solver.transform,
                                   posture_setting=ruleset.solver.posture)
 
     current, basis, jacobian, start = initial, None, None, None
