@@ -4,11 +4,13 @@ memory of each, against today's direct run on the 8.4k horse in the same session
 
 Run: .venv/bin/python benchmarks/bench_resolution.py [--mass-ratio R] [--animals generated horse]
      [--sizes 3000 12000 48000 200000] [--working-vertices N] [--modes M] [--million] [--no-baseline] [--reuse]
+     [--results FILE.json]
 
 Animals: ``generated`` = ``generate_quadruped("horse", vertices=N)`` (one implicit shape,
-marching cubes at each size); ``horse`` = shared/meshes/horse.obj (8,431 vertices) decimated
-(fast-simplification) to 3k, as it is, and Loop-subdivided (trimesh) 1-3 times then decimated to
-12k, 48k, 200k. ``--million``: the horse at 1,000,000 vertices (Loop ×3, midpoint ×1, decimated),
+marching cubes at each size); ``horse`` (or any NAME of shared/meshes/NAME.obj, or ``psb-NNN`` for
+shared/meshes/psb-fourleg/NNN.off) decimated (fast-simplification) to a smaller size, as it is,
+and Loop-subdivided (trimesh) 1-3 times then decimated to a larger one (12k, 48k, 200k); size 0
+is the shared mesh as it is. ``--million``: the horse at 1,000,000 vertices (Loop ×3, midpoint ×1, decimated),
 time and memory only. Each run is its own subprocess (peak memory = its ru_maxrss). The basis
 cache is off. Per run: the working mesh, the time of each part, converged or not, every rule's
 achieved exponent measured on the working mesh and, afresh, on the full-resolution output with the
@@ -50,8 +52,15 @@ def _decimate(vertices, faces, count):
     return np.asarray(v, dtype=float), np.asarray(f, dtype=np.int64)
 
 
+def source(animal: str) -> Path:
+    """The shared mesh an animal's variants are made from."""
+    if animal.startswith("psb-"):
+        return MESHES / "psb-fourleg" / f"{animal[4:]}.off"
+    return MESHES / f"{animal}.obj"
+
+
 def make_variant(animal: str, size: int) -> Path:
-    """An npz (vertices, faces) of ``animal`` at about ``size`` vertices, made once."""
+    """An npz (vertices, faces) of ``animal`` at about ``size`` vertices (0: as it is), made once."""
     import trimesh
 
     WORK.mkdir(parents=True, exist_ok=True)
@@ -66,9 +75,11 @@ def make_variant(animal: str, size: int) -> Path:
     else:
         from allorules.mesh.repair import prepare_mesh
 
-        prepared = prepare_mesh(MESHES / f"{animal}.obj")
+        prepared = prepare_mesh(source(animal))
         vertices, faces = prepared.vertices, prepared.faces
-        if size < len(vertices):
+        if size == 0:       # as it is
+            pass
+        elif size < len(vertices):
             vertices, faces = _decimate(vertices, faces, size)
         elif size > len(vertices) * 1.05:
             times = 0
@@ -78,7 +89,9 @@ def make_variant(animal: str, size: int) -> Path:
             if len(vertices) < size:
                 vertices, faces = trimesh.remesh.subdivide(vertices, faces)
             vertices, faces = _decimate(vertices, faces, size)
-    np.savez(path, vertices=np.asarray(vertices, dtype=float), faces=np.asarray(faces, dtype=np.int64))
+    partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")   # two invocations may make it at once
+    np.savez(partial, vertices=np.asarray(vertices, dtype=float), faces=np.asarray(faces, dtype=np.int64))
+    os.replace(partial, path)
     return path
 
 
@@ -215,6 +228,7 @@ def main() -> None:
     parser.add_argument("--no-baseline", action="store_true", help="skip today's direct run on the 8.4k horse")
     parser.add_argument("--no-full-measure", action="store_true", help="skip measuring the full-resolution outputs")
     parser.add_argument("--reuse", action="store_true", help="read back runs an earlier invocation left in the work folder")
+    parser.add_argument("--results", type=Path, default=RESULTS, help=f"where to write the results (default {RESULTS})")
     parser.add_argument("--one", nargs=7, help=argparse.SUPPRESS)
     arguments = parser.parse_args()
     if arguments.one:
@@ -255,8 +269,8 @@ def main() -> None:
     if not arguments.no_baseline and (MESHES / "horse.obj").exists():
         launch("horse", 8431, direct=True)
     for animal in arguments.animals:
-        if animal != "generated" and not (MESHES / f"{animal}.obj").exists():
-            print(f"{animal}: {MESHES} absent, skipped")
+        if animal != "generated" and not source(animal).exists():
+            print(f"{animal}: {source(animal)} absent, skipped")
             continue
         mine = [launch(animal, size) for size in arguments.sizes]
         mine = [record for record in mine if record is not None]
@@ -286,9 +300,9 @@ def main() -> None:
         runs.append({"animal": animal, "summary": {"label_agreement": agreements, "spread": spread}})
     if arguments.million and (MESHES / "horse.obj").exists():
         launch("horse", 1_000_000, full=False)
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(runs, indent=1, default=float))
-    print(f"wrote {RESULTS}")
+    arguments.results.parent.mkdir(parents=True, exist_ok=True)
+    arguments.results.write_text(json.dumps(runs, indent=1, default=float))
+    print(f"wrote {arguments.results}")
 
 
 if __name__ == "__main__":
