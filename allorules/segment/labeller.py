@@ -568,7 +568,8 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     it sticks out prominently; the head's features (flat: ears; thin tubes: horns); the head tip
     when it is the end of a tube at least TRUNK_LENGTH radii long (a trunk). A cut is kept only
     within the region it grows from (torso, head), and an ear or horn only when it is smaller than
-    APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE, a tail TAIL_SHARE of the torso.
+    APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears and horns left of it, a tail
+    TAIL_SHARE of the torso.
     """
     tail_index, ears_index, horns_index, trunk_index = (ALL_REGIONS.index(name) for name in APPENDAGES)
     cuts = []
@@ -580,7 +581,7 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     head_area = mass[head].sum()
     for tip, kind in ends.head.features.items():
         cuts.append((tip, ends.head.girdle, (HEAD,), ears_index if kind == "flat" else horns_index, APPENDAGE_SHARE * head_area))
-    cuts.append((head_tip, ends.head.girdle, (HEAD,), trunk_index, TRUNK_SHARE * head_area))
+    cuts.append((head_tip, ends.head.girdle, (HEAD,), trunk_index, None))   # its largest: when it is cut
     for tip, girdle, within, index, largest in cuts:
         if labels[tip] not in within:
             continue
@@ -601,6 +602,9 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
         region &= np.isin(labels, within)
         if index == trunk_index:
             region &= head
+            # against the head as the ears' and horns' cuts left it: a head whose ears are a third
+            # of it must not become all trunk (the cow 381 Loop-subdivided, its muzzle a tube)
+            largest = TRUNK_SHARE * mass[labels == HEAD].sum()
         if largest is not None and mass[region].sum() > largest:
             # what the tip reaches below its root ran on into the body (a tail hanging against the
             # rump, geodesically near all of it): the tail is its tube alone, if it has one
