@@ -301,8 +301,8 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
        exponent 1.14 with girth 0.365), which Eq. 9's one α per region cannot give without changing
        what no rule measures (docs/method.md, the trunk's length); held, the trunk grows no more
        than that needs, where δ free lands anywhere the check allows (or beyond: the bull 386 at
-       ×2, 0.726). A run whose one miss is the trunk's length tries κ and the hold together, then
-       the hold alone, then κ alone, then δ free (:func:`_more_variables`);
+       ×2, 0.726). A run whose one miss is the trunk's length tries the hold alone, then κ and the
+       hold together, then κ alone, then δ free (:func:`_more_variables`);
     2. then with ``hold: soft`` (the appendages folded as that setting folds them), kept only if it
        meets every target *and* keeps every open region within the exponent tolerance of
        isometric: a soft run that meets the rules by letting the neck or the tail go (the real
@@ -368,21 +368,22 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     axis: per-axis transform only; neither when δ is off.
 
     A run that met every target but the trunk's length (``missed``, see
-    :data:`allorules.runs.results.MISSES`) starts with κ and the hold together, then the hold
-    alone, then κ alone: κ alone rarely moves the trunk (the real horse at ×2: 0.437 with it and
-    without), and the hold without κ lets the horse's trunk go further (0.424, where κ held gives
-    0.336), so the pair comes first; held with κ the Princeton horse 382 at ×0.5 came out lumpy,
-    held alone it converges."""
+    :data:`allorules.runs.results.MISSES`) starts with the hold alone, then κ and the hold
+    together, then κ alone (which rarely moves the trunk: the real horse at ×2, 0.437 with it and
+    without). Since κ grows the feet with the legs, the real horse at ×2 no longer converges with
+    the pair (trunk 0.452, after 8 steps of 100-200 trials) and does with the hold alone (0.386),
+    as the bull 386 at ×2 and the donkey 385 at ×2 do: tried first, the hold alone saves them the
+    pair's whole run (the horse 419 → 240 s beside other work); the Princeton horse 382 at ×0.5,
+    whose held run misses (0.233), converges with the pair as before."""
     thickness = {"limb_thickness": "on"} if solver.limb_thickness == "when-needed" else {}
     holding = solver.trunk_stretch != "off" and solver.transform == "per-axis" and solver.trunk_hold == "when-needed"
     more = []
     if holding and missed == ("trunk",):
-        if thickness:
-            more.append(("trunk_hold", "the limbs' thickness and the trunk's length held isometric by a soft term",
-                         {**thickness, "trunk_hold": "on"}))
         more.append(("trunk_hold", "the trunk's length held isometric by a soft term",
                      {"limb_thickness": "off", "trunk_hold": "on"} if thickness else {"trunk_hold": "on"}))
         if thickness:
+            more.append(("trunk_hold", "the limbs' thickness and the trunk's length held isometric by a soft term",
+                         {**thickness, "trunk_hold": "on"}))
             more.append(("limb_thickness", "the limbs' thickness as one more variable", {**thickness, "trunk_hold": "off"}))
     else:
         if thickness:
