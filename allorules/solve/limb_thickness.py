@@ -9,25 +9,17 @@ reshapes every region) and puts the rest back with the regions' α at their boun
 lumpy legs on the Princeton pig 383 at ×2, no solution at all for the donkey 385 at ×0.5
 (docs/biology-scaling.md).
 
-κ thickens every limb across its own centre line, faded in from its junction with the body, and
-scales its foot as a whole with it:
+κ thickens every limb across its own centre line, faded in from its junction with the body:
 
-    D(x) = w(f(x)) · (x − p(x))_⊥ + v(f(x)) · ((x − t) · a) a,
-    x̃' = (Eq. 9)(x̃) + κ · s · D̃,   D̃ = Hᵀ M D,
+    D(x) = w(f(x)) · (x − p(x))_⊥,      x̃' = (Eq. 9)(x̃) + κ · s · D̃,   D̃ = Hᵀ M D,
 
 with p(x) the point of the limb's centre line at the vertex's level of the limb's field
 (:meth:`allorules.measure.limbs.Limb.offsets_across`, the line's direction taken out), w a
-smoothstep from 0 at the junction to 1 at ``JUNCTION_FADE`` of the limb's length, t the foot's tip
-and a the leg's direction from its last section to the tip, v a smoothstep from 0 to 1 over
-``FOOT``: below it the foot grows across *and* along the leg by the same factor about its tip, a
-similarity, so a hoof or paw keeps its shape and its proportion to the leg and stays on the
-ground. (Faded out over the foot instead, the foot kept Eq. 9's size while the leg above it
-changed: the real horse at ×2 came out with hooves grown ×2.06 on legs grown ×1.3, the pigs 383
-and 388 at ×2 with trotters ×1.13; across only, the cow 381's hoof changed shape by 37 % of its
-size at ×0.5.) D̃ are the field's coefficients in the step's basis, so the change is as smooth as
-the basis and zero outside the limbs. κ = 0 is Eq. 9; κ = 0.1 makes the legs' girth 10 % larger
-than Eq. 9 made them between the fades, and the foot 10 % larger, without moving the feet along
-the legs.
+smoothstep from 0 at the junction to 1 at ``JUNCTION_FADE`` of the limb's length and back to 0
+over ``FOOT`` (the foot keeps its shape), and D̃ the field's coefficients in the step's basis (so
+the change is as smooth as the basis and zero outside the limbs). κ = 0 is Eq. 9; κ = 0.1 makes
+the legs' girth 10 % larger than Eq. 9 made them between the fades, without moving the feet
+along the legs.
 """
 from __future__ import annotations
 
@@ -40,28 +32,22 @@ from allorules.mesh.geometry import smoothstep
 
 LIMB_THICKNESS_BOUNDS = (-0.3, 0.3)   # κ per step; the real horse at ×2 used 0.07-0.21, the pig 383 0.08-0.13
 JUNCTION_FADE = 0.3                   # share of the limb's length over which the thickening fades in
-FOOT = (0.75, 0.9)                    # share of the limb's length over which the foot's own scaling fades in
+FOOT = (0.75, 0.9)                    # ... and fades out again: the foot below keeps its shape
 
 
 
 def thickening_field(body: Body) -> np.ndarray:
     """D of the module docstring: per vertex of ``body`` (n, 3), each limb vertex's offset across
     its limb's centre line times its weight by how far along the limb it is (rising from the
-    junction over ``JUNCTION_FADE``), plus, over ``FOOT``, its height above the foot's tip along
-    the leg (so that the foot scales as a whole: a similarity about its tip); zero off the limbs
-    and on a limb too short to have a centre line."""
+    junction over ``JUNCTION_FADE``, falling to 0 over ``FOOT``: a hoof or paw scales with the leg
+    but keeps its shape; thinned with the leg, the cow 381's hoof changed shape by 37 % of its
+    size at ×0.5); zero off the limbs and on a limb too short to have a centre line."""
     field = np.zeros_like(np.asarray(body.vertices, dtype=float))
     for region in LIMB_REGIONS:
         if not body.has_region(region):
             continue
         for limb in limb_sections(body, region):
             offsets, along = limb.offsets_across()
-            if len(limb.sections) < 2:
-                continue
-            axis = limb.tip - limb.centroids[-1]
-            axis /= max(float(np.linalg.norm(axis)), np.finfo(float).tiny)
-            height = (limb.mesh.vertices - limb.tip) @ axis
-            across = smoothstep(along / JUNCTION_FADE)
-            foot = smoothstep((along - FOOT[0]) / (FOOT[1] - FOOT[0]))
-            field[limb.mesh.vertex_index] = across[:, None] * offsets + (foot * height)[:, None] * axis
+            weight = smoothstep(along / JUNCTION_FADE) * (1.0 - smoothstep((along - FOOT[0]) / (FOOT[1] - FOOT[0])))
+            field[limb.mesh.vertex_index] = weight[:, None] * offsets
     return field
