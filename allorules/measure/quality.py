@@ -367,7 +367,7 @@ FEATURE_SHAPE_LIMIT = 0.25       # a small feature's shape change, in units of i
 # at ×0.5 converged with club legs at 1.3-1.45 (κ 0.3 in a step), the donkey 385 and the bull 386 at
 # ×2 with pillar legs at 1.06-1.6; 25 of the gallery's 30 converged outputs measure up to 0.38, the
 # real horse at ×2 with its broad hooves 0.4-0.65 (docs/method.md, limits that refuse a run), 0.08
-# since κ grows the feet with the legs (ad4567f).
+# since it tries the trunk held without κ first (43e7ba5).
 LEG_GIRTH_SPREAD_LIMIT = 0.8
 
 

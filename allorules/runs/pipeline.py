@@ -370,11 +370,10 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     A run that met every target but the trunk's length (``missed``, see
     :data:`allorules.runs.results.MISSES`) starts with the hold alone, then κ and the hold
     together, then κ alone (which rarely moves the trunk: the real horse at ×2, 0.437 with it and
-    without). Since κ grows the feet with the legs, the real horse at ×2 no longer converges with
-    the pair (trunk 0.452, after 8 steps of 100-200 trials) and does with the hold alone (0.386),
-    as the bull 386 at ×2 and the donkey 385 at ×2 do: tried first, the hold alone saves them the
-    pair's whole run (the horse 419 → 240 s beside other work); the Princeton horse 382 at ×0.5,
-    whose held run misses (0.233), converges with the pair as before."""
+    without). Held alone, the real horse at ×2 converges with its hooves in proportion (×1.27-1.39,
+    trunk 0.386), where κ with the hold thinned the legs Eq. 9 had thickened and left the hooves
+    ×1.68-2.06; the bull 386 and the donkey 385 at ×2 and the pig 383 at ×0.5 converge held alone
+    too; the Princeton horse 382 at ×0.5, whose held run misses (0.233), converges with the pair."""
     thickness = {"limb_thickness": "on"} if solver.limb_thickness == "when-needed" else {}
     holding = solver.trunk_stretch != "off" and solver.transform == "per-axis" and solver.trunk_hold == "when-needed"
     more = []
