@@ -19,7 +19,8 @@ The rules (documented with their limits in ``docs/segmentation.md``):
    feet (head and neck outweigh a tail). ``forward`` overrides the sign (and the axis).
 5. **Head, neck, chest, abdomen.** See :func:`_split_torso` and :func:`_neck_cuts`: from where
    the skeleton of the front part bends, the neck is followed down as a tube; the head ends at
-   its throat (its narrowest section, in the head's half of the neck) and the neck where the
+   its throat (its narrowest section, or towards the bend as that section lies further down the
+   neck) and the neck where the
    tube flares into the chest (the knee of its section radius).
 
 Everything is measured in units of the mesh's own size (√area), along its own detected axes,
