@@ -77,9 +77,7 @@ def make_variant(animal: str, size: int) -> Path:
 
         prepared = prepare_mesh(source(animal))
         vertices, faces = prepared.vertices, prepared.faces
-        if size == 0:       # as it is
-            pass
-        elif size < len(vertices):
+        if 0 < size < len(vertices):   # (size 0: as it is)
             vertices, faces = _decimate(vertices, faces, size)
         elif size > len(vertices) * 1.05:
             times = 0

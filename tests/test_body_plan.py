@@ -376,15 +376,15 @@ def test_a_head_whose_ears_and_horns_are_cut_does_not_become_all_trunk():
     followed from the nose is a tube, and once its ears and horns were cut the trunk's cut took
     all the head was left with (found no head: refused at 200k, labelled at 6.9k). A trunk is at
     most TRUNK_SHARE of the head the ears and horns leave."""
+    from dataclasses import replace
+
     from scipy.spatial import cKDTree
 
     prepared, marks = _real("381.off")
     working = _working_mesh_of_200k(prepared)
     labelled = label_quadruped(Body(working.vertices, working.faces))
     nearest = cKDTree(working.vertices).query(prepared.vertices)[1]
-    on_working = label_check.HandMarks(len(working.vertices), int(nearest[marks.nose]),
-                                       tuple(int(nearest[v]) for v in marks.fore), tuple(int(nearest[v]) for v in marks.hind),
-                                       None if marks.tail is None else int(nearest[marks.tail]))
+    on_working = replace(marks, file_vertices=len(nearest)).on_body(nearest)   # the marks' nearest working vertices
     verdict = label_check.check_labels(labelled, on_working)
     assert verdict.right and not verdict.swapped, verdict.problems
     assert labelled.labels[on_working.nose] == labelled.region_names.index("head")
