@@ -203,6 +203,23 @@ def test_a_soft_term_the_rules_leave_unmet_stops_the_step_once_the_rules_are_met
     assert solution.evaluations < 40                                               # not the budget of 400
 
 
+def test_a_step_whose_targets_conflict_stops_once_it_stalls(animal, registry):
+    """A soft term far beyond what the rules allow (the body's mass asked at exponent 0.6 by weight
+    0.01, at 1 by the hard term) can never be met: the polish stops once its misfit stops falling
+    (STALL_DROP over STALL_TRIALS) instead of crawling to ftol, with the hard terms still close."""
+    from allorules.solve.step import STALL_TRIALS
+
+    body, basis = animal
+    ruleset = load_ruleset("quadruped", registry)
+    conflict = Term("open:body:mass", "open-region", ruleset.body_mass.measure, ruleset.body_mass.region, 0.6, 0.01)
+    solution = solve_step(body, basis, ruleset, registry, 1.1, measure=_measure(registry, body), extra_terms=[conflict])
+    assert not solution.met and solution.status == "stalled"
+    assert solution.residuals[conflict.id] > 10 * RESIDUAL_TOLERANCE                # unmet, as it must be
+    hard = {key: value for key, value in solution.residuals.items() if key != conflict.id}
+    assert max(map(abs, hard.values())) < 4 * RESIDUAL_TOLERANCE                    # traded a little, not given up
+    assert solution.evaluations < 3 * STALL_TRIALS                                   # xtol took 87 before
+
+
 def test_a_start_that_cannot_be_measured_falls_back_to_isometric(animal, registry):
     """The previous step's variables can turn an exponent 1 + α·G negative on the next mesh; the
     step then starts from isometric scaling instead of failing."""
