@@ -209,7 +209,7 @@ def test_labels_agree_with_generator_truth(generated, preset):
 def test_labels_agree_with_generator_truth_at_other_sizes(preset, vertices, request):
     if (preset, vertices) == ("giraffe", 4000):
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "known shortfall: 0.944 measured (1500: 0.953, 2000: 0.964, 3000: 0.961, 8000: 0.963): the giraffe's "
+            "known shortfall: 0.949 measured (1500: 0.953, 2000: 0.964, 3000: 0.961, 8000: 0.963): the giraffe's "
             "head cut moves with the choice of the head tip by one vertex (docs/segmentation.md)")))
     from allorules.mesh import quadruped
     check_agreement(quadruped.generate_quadruped(preset, vertices=vertices), preset)
@@ -217,16 +217,14 @@ def test_labels_agree_with_generator_truth_at_other_sizes(preset, vertices, requ
 
 @pytest.mark.slow
 @pytest.mark.parametrize("preset", [
-    pytest.param("horse", marks=pytest.mark.xfail(strict=True, reason=(
-        "known shortfall: 0.948 measured on the horse of seed 1 (seeds 2, 3: 0.971, 0.954); the "
-        "head cut at the throat lands ~2% of the area inside the generator's neck"))),
-    "giraffe", "dog",
+    "horse", "giraffe", "dog",
     pytest.param("elephant", marks=pytest.mark.xfail(strict=True, reason=(
-        "known shortfall: 0.939 measured on the elephant of seed 1 (seeds 2, 3: 0.966, 0.953)"))),
+        "known shortfall: 0.945 measured on the elephant of seed 1 (seeds 2, 3: 0.966, 0.953)"))),
 ])
 def test_labels_agree_with_generator_truth_on_a_varied_animal(preset):
     """Seed 1 varies every length by up to ±8% (measured 2000 vertices, seeds 1/2/3: giraffe
-    0.959/0.960/0.962, dog 0.974/0.984/0.972)."""
+    0.959/0.960/0.962, dog 0.974/0.984/0.972, horse 0.961/0.971/0.965; the horse of seed 1 was 0.950
+    while its hind legs took in a pool of the belly)."""
     from allorules.mesh import quadruped
     check_agreement(quadruped.generate_quadruped(preset, vertices=2000, seed=1), preset)
 
@@ -308,6 +306,21 @@ def test_leg_lengths_and_volumes_from_automatic_labels_match_truth(generated, pr
     for region in ("forelimbs", "hindlimbs"):
         assert region_mass(labelled, region) == pytest.approx(animal.truth.region_volume[region], rel=0.05)
         assert region_length(labelled, region) == pytest.approx(animal.truth.leg_length[region], rel=0.05)
+
+
+@pytest.mark.parametrize("preset", ["horse", "giraffe", "dog", "elephant"])
+def test_legs_end_at_their_armpits_and_groins_not_in_a_pool_of_the_belly(generated, preset):
+    """A pool of the torso's underside that a leg's sweep takes in just below where it meets the
+    body is not leg (POOL_PART, POOL_RISE): taken in, it gave the generated horse's hind legs 5.4 %
+    more surface than the generator's and the giraffe's 3.5 % (the cow 381's forelegs a strip of
+    chest joining them). Each pair's surface within 2.5 % of the truth's."""
+    animal = generated[preset]
+    truth = truth_body(animal)
+    labelled = label_six(animal.vertices, animal.faces)
+    mass = vertex_areas(animal.vertices, animal.faces)
+    for region in ("forelimbs", "hindlimbs"):
+        found, true = mass[labelled.region_mask(region)].sum(), mass[truth.region_mask(region)].sum()
+        assert found == pytest.approx(true, rel=0.025), region
 
 
 # ---------------------------------------------------------------- real meshes

@@ -54,6 +54,12 @@ APPENDAGES = ("tail", "ears", "horns", "trunk")
 ALL_REGIONS = REGIONS + APPENDAGES
 
 SUBSTANTIAL_PART = 0.01     # of the surface area: smaller sublevel parts are bumps, not the body
+# A pool of the surface (≥ POOL_PART of it, not a leg) that a leg's sweep takes in within POOL_RISE
+# of its height above the foot below its cut is body, not leg: the flat chest between the
+# forelegs, level with the armpits (the cow 381: 0.7 % of its surface, taken in 0.2-1.2 % of the
+# leg's height below its cut), which had joined the two forelegs by a strip of chest.
+POOL_PART = 0.001
+POOL_RISE = 0.03
 
 # A four-legged animal's proportions, as shares of its surface, with wide margins: over the 15 real
 # animals of shared/meshes and the generated horse, elephant, giraffe and dog in 8 poses each
@@ -350,7 +356,8 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
     standing leg, slanted for a swung one): sub-level sets of the height along that axis,
     union–find. The foot's part stops growing at the first height where it meets another
     substantial part (area ≥ SUBSTANTIAL_PART of the surface, or holding another foot): that
-    height is the leg's cut, a plane across the leg at its armpit or groin. Two legs that only
+    height is the leg's cut, a plane across the leg at its armpit or groin. A smaller pool it took
+    in just below its cut is left out (:func:`_without_pools`). Two legs that only
     touch (knees, hocks) are not the body: when the foot's part meets another foot's and, just
     above the meeting, the section across the axis still shows them as two separate loops, the
     sweep goes on. Where two legs claim the same vertices (touching legs), each goes to the
@@ -375,6 +382,7 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
         area = np.zeros(n)
         holds_foot = np.zeros(n, dtype=bool)
         level = None
+        pools = []                  # (height, pool, the foot's part) where the foot's part took in a pool
         core = cores.get(foot) if cores else None
         if core is not None:
             members = np.flatnonzero(core)
@@ -397,6 +405,11 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
                     if not touching:
                         level = height[v]
                         break
+                taken = [r for r in roots if r != mine[0] and not holds_foot[r] and area[r] >= POOL_PART * mass.sum()]
+                if taken:
+                    processed = np.flatnonzero(parent >= 0)
+                    root_of = np.array([_find(parent, u) for u in processed])
+                    pools.append((height[v], processed[np.isin(root_of, taken)], processed[root_of == mine[0]]))
             parent[v] = v
             area[v] = mass[v]
             holds_foot[v] = is_foot[v]
@@ -413,6 +426,9 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
             below |= core
         parts = vertex_components(graph, below)
         claimed[k] = below & (parts == parts[foot])
+        near = [pool for pool in pools if level - pool[0] <= POOL_RISE * (level - height[foot])]
+        if near:
+            claimed[k] = _without_pools(graph, claimed[k], near)
         if levels_out is not None:
             levels_out[foot] = float(level)
     legs = np.full(n, -1, dtype=np.int64)
@@ -427,6 +443,24 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
         nearest = np.asarray(feet)[np.argmin(distance, axis=0)]
         legs[shared] = nearest[[local[int(v)] for v in shared]]
     return legs
+
+
+def _without_pools(graph, claimed: np.ndarray, pools) -> np.ndarray:
+    """``claimed`` without the pools a leg's sweep took in just below its cut: each claimed vertex
+    goes to the nearer (along the surface) of the leg as it was before the first of them and the
+    pools; the vertices of the leg's side are kept."""
+    leg = np.zeros(len(claimed), dtype=bool)
+    leg[pools[0][2]] = True
+    pool = np.zeros(len(claimed), dtype=bool)
+    for _, members, _ in pools:
+        pool[members] = True
+    inside = np.flatnonzero(claimed)
+    sources = np.flatnonzero((leg | pool)[inside])
+    _, _, nearest = dijkstra(graph[inside][:, inside], indices=sources, min_only=True, return_predecessors=True)
+    kept = np.zeros(len(claimed), dtype=bool)
+    reached = nearest >= 0
+    kept[inside[reached]] = leg[inside[nearest[reached]]]
+    return kept
 
 
 def _legs_touch(vertices, faces, adjacency, height, up, parent, foot_roots, v) -> bool:
