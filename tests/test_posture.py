@@ -231,11 +231,12 @@ def test_real_camel_at_x2_keeps_its_tail_and_says_where_its_touching_knees_fold(
 
 
 def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
-    """The Princeton horse 382's foreleg meets the chest along a slanted rim (the armpit) that
-    spans a quarter of the leg's field. The foot contact's stretch and the turn back upright move
-    the leg and not the body, so both must leave every rim vertex where it is: risen from the
-    field's lowest value, the stretch weighed 0.48 on part of that rim and 0 on the chest beside
-    it, and the chest creased along the foreleg's top at ×2 (19 flipped faces)."""
+    """A leg can meet the body along a slanted rim: the Princeton pig 383's hind leg along one that
+    spans a third of the leg's field (the horse 382's foreleg, a quarter, until the pool of its
+    chest below the armpit was given back to the body). The foot contact's stretch and the turn
+    back upright move the leg and not the body, so both must leave every rim vertex where it is:
+    risen from the field's lowest value, the stretch weighed 0.48 on part of the horse's rim and 0
+    on the chest beside it, and the chest creased along the foreleg's top at ×2 (19 flipped faces)."""
     from scipy.spatial.transform import Rotation
 
     from allorules.plugins.registry import registry_for
@@ -243,7 +244,7 @@ def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
     from allorules.runs import pipeline
     from allorules.solve.posture import _limbs
 
-    prepared = pipeline.prepare(shared_meshes / "psb-fourleg" / "382.off")
+    prepared = pipeline.prepare(shared_meshes / "psb-fourleg" / "383.off")
     body = pipeline.label_working(prepared, pipeline.working(prepared), registry=registry_for(None),
                                   regions=pipeline.wanted_regions(load_ruleset("quadruped")))
     limbs = [limb for limb in _limbs(body) if limb.sections]
@@ -261,9 +262,13 @@ def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
         restored = restore_limb_axes(body, body.with_vertices(leaning))
         np.testing.assert_allclose(restored[rim], leaning[rim], atol=1e-12)
         # how far along the leg each vertex is (κ's fade-in) rises from 0 on the rim without a step
-        # (it jumped from 0 to 0.25 at the slanted foreleg's first section)
+        # (it jumped from 0 to 0.25 at the horse 382's slanted foreleg's first section, five times
+        # what the edge's length gives): an edge rises by at most about its share of the leg's
+        # length from the rim (measured 1.2-2.1 times it on 382, 383, 386 and the real horse)
         _, along = limb.offsets_across()
         edges = limb.mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         assert np.all(along[limb.junction_loop.vertex_ids] == 0.0)
-        assert np.abs(along[edges[:, 0]] - along[edges[:, 1]]).max() < 0.1, limb.region     # an edge's own rise: < 0.08
+        lengths = np.linalg.norm(limb.mesh.vertices[edges[:, 0]] - limb.mesh.vertices[edges[:, 1]], axis=1)
+        share = lengths / (limb.length * (1.0 - limb.clear_fraction))
+        assert (np.abs(along[edges[:, 0]] - along[edges[:, 1]]) / share).max() < 3.0, limb.region
     assert slanted >= 1            # the case this guards: a rim spread over a fifth of a leg's field
