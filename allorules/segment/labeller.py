@@ -835,9 +835,9 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
     without turning into the chest. (From the first section's centre instead, the chord turned the
     horse 387's axis by 46° at 200k vertices: that section, at the bend, ran round the back of the
     head, its centre far from the neck's axis; the sections then cut the neck lengthwise and its base
-    was found a fifth of the way down.) r changes slowly along the neck (its taper) and fast where the sections
-    enter the chest: the base is the knee of r(t), past the narrowest section, of r's running
-    maximum: the point farthest below the chord to its top (no threshold).
+    was found a fifth of the way down.) r changes slowly along the neck (its taper) and fast where
+    the sections enter the chest: the base is the knee of r(t), past the narrowest section, of r's
+    running maximum: the point farthest below the chord to its top (no threshold).
 
     The neck ends where the forelimbs begin: when more than SHOULDER_SHARE of ``shoulders`` (the
     points where the forelimbs meet the body) lie on the head's side of the base's section, the

@@ -68,10 +68,10 @@ and nlopt stops as soon as none is, or once it has *stalled*: its best misfit fe
 ``STALL_TRIALS`` trials (at least 2n + 2 for n variables, BOBYQA's model needs 2n + 1). A step whose
 targets cannot all be met together (a soft term against the rules: the real horse at ×2 with its
 trunk held, whose trunk residual grows to 0.037) otherwise crawls to ``ftol_rel`` in ~200 trials for
-misfit drops of 10⁻⁸; what it leaves is carried into the next step as every miss is. Some measures are not smooth at the 10⁻³ level (the
-chest girth is the largest of several loops, filtered by position, so it jumps when a loop enters
-or leaves); chasing residuals below that made nlopt wander to large, opposing α that met the
-numbers with a bent body. Trials whose exponent turns
+misfit drops of 10⁻⁸; what it leaves is carried into the next step as every miss is. Some measures
+are not smooth at the 10⁻³ level (the chest girth is the largest of several loops, filtered by
+position, so it jumps when a loop enters or leaves); chasing residuals below that made nlopt wander
+to large, opposing α that met the numbers with a bent body. Trials whose exponent turns
 non-positive or whose mesh cannot be measured get ``FAILED_ENERGY``; the best trial seen is always
 what is returned, with the solver's status.
 """
