@@ -209,7 +209,7 @@ def test_labels_agree_with_generator_truth(generated, preset):
 def test_labels_agree_with_generator_truth_at_other_sizes(preset, vertices, request):
     if (preset, vertices) == ("giraffe", 4000):
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "known shortfall: 0.949 measured (1500: 0.953, 2000: 0.964, 3000: 0.961, 8000: 0.963): the giraffe's "
+            "known shortfall: 0.949 measured (1500: 0.959, 2000: 0.969, 3000: 0.966, 8000: 0.968): the giraffe's "
             "head cut moves with the choice of the head tip by one vertex (docs/segmentation.md)")))
     from allorules.mesh import quadruped
     check_agreement(quadruped.generate_quadruped(preset, vertices=vertices), preset)
