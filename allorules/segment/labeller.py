@@ -407,8 +407,7 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
                         break
                 taken = [r for r in roots if r != mine[0] and not holds_foot[r] and area[r] >= POOL_PART * mass.sum()]
                 if taken:
-                    processed = np.flatnonzero(parent >= 0)
-                    root_of = np.array([_find(parent, u) for u in processed])
+                    processed, root_of = _processed_roots(parent)
                     pools.append((height[v], processed[np.isin(root_of, taken)], processed[root_of == mine[0]]))
             parent[v] = v
             area[v] = mass[v]
@@ -445,6 +444,12 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
     return legs
 
 
+def _processed_roots(parent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices a sweep has processed so far (``parent`` ≥ 0) and the root of each's part."""
+    processed = np.flatnonzero(parent >= 0)
+    return processed, np.array([_find(parent, u) for u in processed], dtype=np.int64)
+
+
 def _without_pools(graph, claimed: np.ndarray, pools) -> np.ndarray:
     """``claimed`` without the pools a leg's sweep took in just below its cut: each claimed vertex
     goes to the nearer (along the surface) of the leg as it was before the first of them and the
@@ -469,8 +474,7 @@ def _legs_touch(vertices, faces, adjacency, height, up, parent, foot_roots, v) -
     (two typical edge heights) and one leg radius above v, the loops nearest each part's top are
     different loops (legs that go on separately), not one (the body that joins them)."""
     step = 2 * float(np.median(np.abs(height[faces[:, 0]] - height[faces[:, 1]])))
-    processed = np.flatnonzero(parent >= 0)
-    root_of = np.array([_find(parent, u) for u in processed])
+    processed, root_of = _processed_roots(parent)
     tops = []
     for root in foot_roots:
         mine = processed[root_of == root]
