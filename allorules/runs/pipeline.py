@@ -51,6 +51,8 @@ from allorules.runs.local import scale_region, seam_strain
 from allorules.runs.progress import RunProgress
 from allorules.runs.results import (
     EXPONENT_TOLERANCE,
+    TRUNK_LENGTH_RETRY,
+    TRUNK_LENGTH_TOLERANCE,
     BiologyScalingResult,
     LocalResult,
     RawGlobalResult,
@@ -287,7 +289,9 @@ def scale(body: Body, scaling: Scaling, *, registry: PluginRegistry, modes: int 
 def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: PluginRegistry, modes: int | None,
                         use_cache: bool, progress: RunProgress | None) -> BiologyScalingResult:
     """A ruleset run, and what is tried when it misses with its open regions held by their shape
-    (the default), in this order:
+    (the default), in this order (a run kept in its first try or with κ alone whose trunk's length
+    strayed beyond ``TRUNK_LENGTH_RETRY`` of isometric is also made again with the trunk held:
+    :func:`_trunk_nearer_isometric`):
 
     1. with ``solver.limb_thickness: when-needed`` (the default), the run is made again with κ, the
        limbs' thickness, as one more variable (:mod:`allorules.solve.limb_thickness`), kept if it
@@ -313,10 +317,14 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return scale_with_ruleset(labelled, ruleset, scaling.mass_ratio, registry=registry, modes=modes,
                                   section=scaling.section, use_cache=use_cache, progress=progress)
 
+    def run_with(solver):
+        return run(replace(scaling.ruleset, solver=solver), body)
+
     result = run(scaling.ruleset, body)
     opened, solver = scaling.ruleset.open_regions, scaling.ruleset.solver
-    if result.converged or opened.hold != "shape" or not any(
-            outcome.held and outcome.hold == "shape" for outcome in result.open_regions):
+    if result.converged:
+        return _trunk_nearer_isometric(result, solver, run_with)
+    if opened.hold != "shape" or not any(outcome.held and outcome.hold == "shape" for outcome in result.open_regions):
         return result
     missed = result.messages[0] if result.messages else "a target missed"
     tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
@@ -324,14 +332,14 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         solver = replace(solver, **settings)
         log.warning("the open regions held by their shape, the run missed its targets (%s); trying again with %s",
                     missed, what)
-        again = run(replace(scaling.ruleset, solver=solver), body)
+        again = run_with(solver)
         if again.converged:
             trunk = again.trunk_length_exponent if variable in ("trunk_stretch", "trunk_hold") else None
             grown = "" if trunk is None else f"length exponent {trunk:.3f}, isometric 0.333; "
             again.warnings.insert(0, f"the open regions held by their shape, the rules were met only with {what} "
                                      f"({grown}solver.{variable}); without it: {missed}")
             log.warning("%s", again.warnings[0])
-            return again
+            return _trunk_nearer_isometric(again, solver, run_with) if variable == "limb_thickness" else again
         why = again.messages[0] if again.messages else "a target missed"
         tried.append(f"with {what} the run did not help ({why})")
         log.warning("%s", tried[-1])
@@ -359,6 +367,39 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
                           "isometric: see open_regions in the report", *tried]
     log.warning("%s", again.warnings[0])
     return again
+
+
+def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> BiologyScalingResult:
+    """``result``, a converged run, or the run made again with the trunk's length held isometric by
+    a soft term (δ its lever, κ as ``solver`` has it) where the trunk strayed beyond
+    ``TRUNK_LENGTH_RETRY`` of 1/3 (within ``TRUNK_LENGTH_TOLERANCE``, or the run would not have
+    converged), kept if it converges with its trunk nearer 1/3. Only where ``solver.trunk_hold`` is
+    ``when-needed`` and the trunk could be held (δ allowed, per-axis transform); a trunk a rule
+    measures is not checked (its exponent is None). Kept or not, the report says what the trunk
+    reached: the real horse at ×2 met every rule with its trunk at 0.419 and its chest rising into
+    its neck, where held (0.38) it is the same horse heavier."""
+    trunk = result.trunk_length_exponent
+    holdable = solver.trunk_hold == "when-needed" and solver.trunk_stretch != "off" and solver.transform == "per-axis"
+    if trunk is None or not holdable or abs(trunk - 1.0 / 3.0) <= TRUNK_LENGTH_RETRY:
+        return result
+    log.warning("the run met its targets with the trunk's length at exponent %.3f (isometric 0.333, made again "
+                "beyond ±%g); trying again with it held isometric by a soft term", trunk, TRUNK_LENGTH_RETRY)
+    held = run_with(replace(solver, trunk_hold="on"))
+    nearer = held.trunk_length_exponent is not None and abs(held.trunk_length_exponent - 1 / 3) < abs(trunk - 1 / 3)
+    if held.converged and nearer:
+        held.warnings.insert(0, f"the run met every target with the trunk's length at exponent {trunk:.3f} "
+                                f"(isometric 0.333); made again with it held isometric by a soft term "
+                                f"(solver.trunk_hold), it reached {held.trunk_length_exponent:.3f}")
+        log.warning("%s", held.warnings[0])
+        return held
+    why = (held.messages[0] if held.messages else "a target missed") if not held.converged else (
+        f"its trunk reached {held.trunk_length_exponent:.3f}")
+    result.warnings.append(f"the trunk's length reached exponent {trunk:.3f}, beyond ±{TRUNK_LENGTH_RETRY} of "
+                           f"isometric's 0.333 (within the tolerance ±{TRUNK_LENGTH_TOLERANCE}); held by a soft "
+                           f"term the run did no better ({why}): the animal's trunk may look "
+                           + ("longer" if (trunk - 1.0 / 3.0) * np.log(result.target_mass_ratio) > 0 else "shorter"))
+    log.warning("%s", result.warnings[-1])
+    return result
 
 
 def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str, dict[str, str]]]:

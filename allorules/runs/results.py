@@ -83,6 +83,13 @@ CONSTRAINT_TOLERANCE = 0.02
 # needed 0.384; unchecked, the stretch drew the Princeton donkey's trunk out to 1.43 with every rule met.
 TRUNK_LENGTH_TOLERANCE = 0.1
 
+# A run that converged with its trunk's length further than this from 1/3 (where no rule measures it)
+# is made again with the trunk held isometric by a soft term (solver.trunk_hold: when-needed) and the
+# held run kept if it converges nearer (runs/pipeline.py). Within ±0.1 the real horse at ×2 came out
+# at 0.419 with its chest rising into its neck, giraffe-like, where held (0.38) it is the same horse
+# heavier; at ×0.5 the Princeton horse 382's 0.240 is a trunk 7 % longer than isometric's.
+TRUNK_LENGTH_RETRY = 0.05
+
 
 # The kinds of target a ruleset run can miss (BiologyScalingResult.missed): a rule's exponent, the
 # mass ratio, a constraint's residual, the trunk's length beyond TRUNK_LENGTH_TOLERANCE, and a
@@ -187,7 +194,7 @@ class BiologyScalingResult(ScalingResult):
             "trunk_length_exponent": self.trunk_length_exponent,
             "missed": list(self.missed),
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE,
-                           "trunk_length": TRUNK_LENGTH_TOLERANCE},
+                           "trunk_length": TRUNK_LENGTH_TOLERANCE, "trunk_length_retry": TRUNK_LENGTH_RETRY},
         }
 
 
