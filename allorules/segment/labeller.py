@@ -834,11 +834,14 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
 
     Each step cuts the surface with the plane through the current axis point perpendicular to
     the current direction, takes the loop around the point (its equivalent radius r and its
-    centre), and steps on from that centre; the direction is the chord from the first centre to
-    the current one (beyond two radii), so the axis follows a gently bent neck without turning
-    into the chest. r changes slowly along the neck (its taper) and fast where the sections
-    enter the chest: the base is the knee of r(t), past the narrowest section, of r's running
-    maximum: the point farthest below the chord to its top (no threshold).
+    centre), and steps on from that centre; the direction is the chord from ``start`` (a point of
+    the skeleton) to the current centre (beyond two radii), so the axis follows a gently bent neck
+    without turning into the chest. (From the first section's centre instead, the chord turned the
+    horse 387's axis by 46° at 200k vertices: that section, at the bend, ran round the back of the
+    head, its centre far from the neck's axis; the sections then cut the neck lengthwise and its base
+    was found a fifth of the way down.) r changes slowly along the neck (its taper) and fast where
+    the sections enter the chest: the base is the knee of r(t), past the narrowest section, of r's
+    running maximum: the point farthest below the chord to its top (no threshold).
 
     The neck ends where the forelimbs begin: when more than SHOULDER_SHARE of ``shoulders`` (the
     points where the forelimbs meet the body) lie on the head's side of the base's section, the
@@ -862,7 +865,7 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
         directions.append(direction)
         if distance_so_far > span:
             break
-        chord = centre - centres[0]
+        chord = centre - start
         if np.linalg.norm(chord) > 2 * r:
             direction = chord / np.linalg.norm(chord)
         point = centre + step * direction
