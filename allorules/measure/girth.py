@@ -81,6 +81,7 @@ def _section_piece(body: Body, region: str, piece: str) -> RegionPart:
 
 
 MIN_TRUNK_LEVELS = 4        # a chest or torso piece measures heart girth only where it gives the trunk's section at this many levels
+TRUNK_COVER = 0.5           # and behind the forelimbs at this share of the levels where the whole body gives it, or more
 TRUNK_SECTION_MATCH = 0.05   # a region's loop is the trunk's section when its girth is within this of it
 
 
@@ -94,13 +95,21 @@ def _trunk_section(body: Body, loop: Loop, axis: np.ndarray, level: float) -> bo
     return abs(loop.girth - sections[0].girth) <= TRUNK_SECTION_MATCH * sections[0].girth
 
 
+# The regions a tape around the trunk may cross: the torso's, and the neck's where its region reaches
+# down over the withers (the giraffe 390: its neck's base cut slants, so the chest's sections in
+# front of its middle run over neck; without it the torso piece closed at the chest's back only, 5
+# levels on the input and 3 at ×1.54, and heart girth jumped by a third to the whole body's sections).
+TAPE_REGIONS = (*TORSO_REGIONS, "neck")
+
+
 def _torso_piece(body: Body, region: str) -> RegionPart:
-    """The connected piece of the torso (faces mostly chest or abdomen) that holds ``region``'s
-    largest part: what a tape measure goes around when the region's own sections do not close."""
+    """The connected piece of the trunk (faces mostly of TAPE_REGIONS: chest, abdomen, neck) that
+    holds ``region``'s largest part: what a tape measure goes around when the region's own sections
+    do not close."""
     cache = measured(body).parts
     if "torso" not in cache:
         in_torso = np.zeros(len(body.vertices), dtype=bool)
-        for name in TORSO_REGIONS:
+        for name in TAPE_REGIONS:
             if body.has_region(name):
                 in_torso |= body.region_mask(name)
         faces = body.faces[in_torso[body.faces].sum(axis=1) >= 2]
@@ -168,11 +177,14 @@ def chest_girth(body: Body) -> float:
         loops, _ = candidates(kept, piece, margin, check=False)
     else:
         for margin in CHEST_LIMIT_MARGINS if junction is not None else CHEST_LIMIT_MARGINS[:1]:
+            whole = candidates(None, "body", margin)
             for piece in ("part", "torso", "body"):
-                loops, kept = candidates(None, piece, margin)
+                loops, kept = whole if piece == "body" else candidates(None, piece, margin)
                 # a piece whose sections are the trunk's at a few levels only is a strip or a patch:
-                # which levels pass would change with the smallest deformation (from step to step)
-                if loops and (piece == "body" or len(kept) >= MIN_TRUNK_LEVELS):
+                # which levels pass would change with the smallest deformation (from step to step);
+                # one that closes behind the forelimbs at fewer than TRUNK_COVER of the levels the
+                # body does gives the back of the chest's girth, not heart girth
+                if loops and (piece == "body" or (len(kept) >= MIN_TRUNK_LEVELS and len(loops) >= TRUNK_COVER * len(whole[0]))):
                     cache.chest_candidates = (kept, piece, margin)
                     break
             if loops:
