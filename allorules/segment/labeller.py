@@ -734,6 +734,8 @@ def isocontour_profile(vertices, faces, field, levels):
 PROFILE_LEVELS = 160
 BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE of the profile
 MIN_NECK_LENGTH = 1.0      # a neck runs at least one of its radii from the bend to its base
+MIN_NARROWING = 0.25       # a bend whose neck narrows over fewer of its radii yields to one as sharp whose neck does
+BEND_TIE = 0.9             # as sharp: at least this share of its turn
 
 
 def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
@@ -790,7 +792,11 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     # first narrow (from the back of the head into the neck) and the tube then runs at least
     # MIN_NECK_LENGTH of its radii before flaring into the chest. The first candidate that
     # shows both wins (a camel's S-shaped neck bends sharply again where it enters the chest,
-    # and from there the sections only grow); if none does, the sharpest bend with a tube.
+    # and from there the sections only grow), unless its narrowing is shorter than MIN_NARROWING
+    # radii (no more than noise) and a bend about as sharp (BEND_TIE) shows a longer one: the
+    # camel Loop-subdivided to 200k has two bends equally sharp, 74.9° where the neck enters the
+    # chest and 74.1° at the head, and from the first the sections narrow over 0.13 radii, from
+    # the second over 1.6. Where none shows both, the sharpest bend with a tube.
     peaks = [k for k in range(1, len(levels) - 1)
              if turn[k] >= turn[k - 1] and turn[k] > turn[k + 1] and turn[k] >= 0.5 * turn.max()]
     peaks.sort(key=lambda k: -turn[k])
@@ -808,12 +814,16 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
-        if neck[3] > 0 and neck[2] >= MIN_NECK_LENGTH:
+        if neck[3] >= MIN_NARROWING and neck[2] >= MIN_NECK_LENGTH:
             break
     if not found:
         return None, None
-    bend, neck_direction, (base_point, base_direction, _, _, throat) = next(
-        (candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH), found[0])
+    necks = [candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH]
+    narrowing = [candidate for candidate in necks if candidate[2][3] >= MIN_NARROWING]
+    chosen = necks[0] if necks else found[0]
+    if narrowing and turn[narrowing[0][0]] >= BEND_TIE * turn[chosen[0]]:
+        chosen = narrowing[0]
+    bend, neck_direction, (base_point, base_direction, _, _, throat) = chosen
     # The head cut: at the throat (the neck's narrowest section in its head half, else the bend;
     # see _follow_neck), across the neck's axis as the tube-following found it (the chord from
     # the bend to the base), not the first chord after the bend, which still leans into the head.
