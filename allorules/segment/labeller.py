@@ -543,6 +543,7 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
         depth = (vertices[neck] - point) @ normal
         order = np.argsort(depth)
         base = np.cumsum(mass[neck][order]) <= NECK_BAND * mass[neck].sum()
+        base[0] = True                     # a neck of a few faces at least, never none
         labels[neck[order[~base]]] = HEAD
     if not merged and not ((labels == HEAD).any() and (labels == NECK).any()):
         _ring_head_and_neck(vertices, faces, graph, mass, labels, in_rest & ends.head.region, head_tip, along, middle)
