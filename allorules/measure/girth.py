@@ -184,7 +184,8 @@ def chest_girth(body: Body) -> float:
                 # which levels pass would change with the smallest deformation (from step to step);
                 # one that closes behind the forelimbs at fewer than TRUNK_COVER of the levels the
                 # body does gives the back of the chest's girth, not heart girth
-                if loops and (piece == "body" or (len(kept) >= MIN_TRUNK_LEVELS and len(loops) >= TRUNK_COVER * len(whole[0]))):
+                enough = len(kept) >= MIN_TRUNK_LEVELS and len(loops) >= TRUNK_COVER * len(whole[0])
+                if loops and (piece == "body" or enough):
                     cache.chest_candidates = (kept, piece, margin)
                     break
             if loops:

@@ -510,9 +510,11 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     girdles. Head and neck: the section loops of :func:`_neck_cuts`, followed from ``head_tip``,
     cut them off the front (each the part connected to the head tip beyond its loop, see
     :func:`_beyond_loop`); a cut with more than LEAK_SHARE of its area behind the middle plane
-    leaks into the body and is not used. Where that gives no head or no neck, the rings from the
-    head tip decide them (:func:`_ring_head_and_neck`). The tail
-    (behind the hind legs) stays with the abdomen here; :func:`_cut_appendages` takes it out.
+    leaks into the body and is not used. A head cut under MIN_HEAD_CUT of the surface is a snout's
+    tip: what the neck's cut took off is the head, but for a band at its base (NECK_BAND). Where
+    the cuts give no head or no neck, the rings from the head tip decide them
+    (:func:`_ring_head_and_neck`). The tail (behind the hind legs) stays with the abdomen here;
+    :func:`_cut_appendages` takes it out.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
     along = vertices @ axis
