@@ -323,6 +323,13 @@ def test_real_meshes_are_labelled_right_or_refused_never_swapped(name):
     # shoulders (measured before the neck stopped there: the pig 383 0.91 of their border, the bull
     # 386 0.44, the donkey 385 on its working mesh; 0 on every mesh since)
     assert _border_share(labelled, "forelimbs", "neck") <= 0.02
+    # ears and horns grow from the top of the head, not at the nose (the wolf's lower jaw, a flat
+    # sheet beside its nose, was cut as its ears)
+    size = float(np.linalg.norm(np.ptp(labelled.vertices, axis=0)))
+    for feature in ("ears", "horns"):
+        if labelled.has_region(feature):
+            near = np.linalg.norm(labelled.vertices[labelled.region_mask(feature)] - labelled.vertices[marks.nose], axis=1)
+            assert near.min() > 0.05 * size, (feature, near.min() / size)
 
 
 def _border_share(body: Body, region: str, neighbour: str) -> float:

@@ -383,23 +383,31 @@ def test_a_run_that_missed_only_the_trunk_tries_the_hold_alone_first(generated_h
     assert result.converged
 
 
-def test_every_held_appendage_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes):
+@pytest.mark.parametrize("mesh, regions", [
+    ("wolf.obj", {"neck", "tail"}),
+    pytest.param("psb-fourleg/381.off", {"neck", "ears", "horns"}, marks=pytest.mark.xfail(strict=True, reason=(
+        "known fault, found 3 December 2026 when the wolf lost its only ears (its lower jaw): the cow "
+        "381's two ears held as one part come out at scale 0.9039 for 0.9, residual 0.5 % of the body "
+        "after the best similarity; their near zone holds 30 vertices of other parts"))),
+])
+def test_every_held_appendage_of_a_real_wolf_keeps_its_shape_exactly(shared_meshes, mesh, regions):
     """A zone spreads its opening's mismatch over the body beside it, never over an appendage held
-    before it, and parts that share a vertex are one part: the wolf's ears and neck touch one another's zones
-    and its tail had two pieces of 8 vertices touching it at a vertex, so a part applied later moved
-    one applied before (the cow 381's ears shrank to length exponent 0.258 at ×0.5 so)."""
+    before it, and parts that share a vertex are one part: the wolf's neck touched the zone of
+    what was then cut as its ears (its lower jaw, since left in the head) and its tail had two
+    pieces of 8 vertices touching it at a vertex, so a part applied later moved one applied before
+    (the cow 381's ears shrank to length exponent 0.258 at ×0.5 so)."""
     from allorules.measure.features import similarity_fit
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
     from allorules.solve.open_regions import shape_held_regions
 
     ruleset = load_ruleset("quadruped")
-    prepared = pipeline.prepare(shared_meshes / "wolf.obj")
+    prepared = pipeline.prepare(shared_meshes / mesh)
     work = pipeline.working(prepared)
     body = pipeline.label_working(prepared, work, registry=pipeline.registry_for(None),
                                   regions=pipeline.wanted_regions(ruleset))
     held = hold_regions(body, shape_held_regions(ruleset, body))
-    assert {"neck", "tail", "ears"} <= set(held.regions)
+    assert regions <= set(held.regions)
     for index, part in enumerate(held.parts):
         before = np.concatenate([other.members for other in held.parts[:index] if other.region != "neck"]
                                 or [np.zeros(0, int)])

@@ -67,6 +67,7 @@ MIRROR_PERSISTENCE = 0.03      # mirror features (ears, horns) are at least this
 MIRROR_AGD = 0.05              # of the AGD range
 MIRROR_REACH = 0.1             # relative difference of their distances from the girdle
 MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
+MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of its reach (in space) is its end's, no feature
 
 # Head or tail.
 HEAD_TAIL_MARGIN = 0.6         # summed evidence needed
@@ -452,10 +453,14 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     if main_tip is not None:
         thickness = max(_ring_length(vertices, faces, distance[main_tip], f * reach[main_tip]) for f in (0.1, 0.2, 0.3))
     protrudes = any(persistence[t] >= CANDIDATE_PERSISTENCE for t in tips)
-    # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip.
+    # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip nor a
+    # tip beside it (MUZZLE_SHARE: the wolf's lower jaw, a flat sheet 0.08 of its reach from its
+    # nose, was cut as its ears; every ear and horn we have lies 0.30 or more of it away).
     features = {}
+    beside = {t for t in tips if main_tip is not None
+              and np.linalg.norm(vertices[t] - vertices[main_tip]) < MUZZLE_SHARE * reach[main_tip]}
     for t in set([t for t in tips if appendage[t]] + [t for pair_ in mirror_pairs for t in pair_]):
-        if t != main_tip:
+        if t != main_tip and t not in beside:
             flat = ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE
             thin = ring[t] < APPENDAGE_RING * widest
             features[t] = "thin" if thin and not flat else "flat"
