@@ -156,6 +156,7 @@ def chest_girth(body: Body) -> float:
     junction = _forelimb_limit(body, axis)
 
     def candidates(targets: np.ndarray | None, piece: str, margin: float, check: bool = True) -> tuple[list[Loop], np.ndarray]:
+        check = check and piece != "body"   # the body's longest loop is the trunk's section by definition
         loops, kept = _torso_loops(body, "chest", axis, targets, piece, check)
         if junction is None:
             return loops, kept
