@@ -24,7 +24,7 @@ nearly as they were, and which do not depend on the file's orientation, units or
    * ``thickness``: the end protrusion's girth part-way along it, against the torso's (a tail is
      thin; a head, even a cartoon's, is not);
    * ``presence``: an end with a prominent protrusion against an end with none (tails can be
-     missing).
+     missing), graded by the protrusion's persistence (:attr:`End.presence`).
    The sum decides; it is refused when it is small, when fewer than two cues speak for it, or
    when a strong cue disagrees with it.
 """
@@ -73,6 +73,9 @@ MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of it
 HEAD_TAIL_MARGIN = 0.6         # summed evidence needed
 STRONG_CUE = 0.5               # a cue this strong against the sum refuses
 AGREEING_CUE = 0.25            # at least two cues this strong must speak for the chosen end
+PRESENCE_FAINT = 0.04          # an end's most prominent tip at or below this: nothing sticks out
+PRESENCE_FULL = 0.16           # ... at or above this: something surely does (the horse 387's stub of a
+                               # tail is 0.075 as it comes, 0.084 Loop-subdivided: a step there refused it)
 
 SETTLE = ("settle it with --forward DIR (tail to head), a labels file (--segmentation FILE), or "
           "allorules segment MESH --patches 24 --png patches.png and a merge file")
@@ -315,8 +318,22 @@ class End:
     main_tip: int | None        # the end protrusion's tip (nose or tail tip)
     mirror_pairs: list[tuple[int, int]]
     thickness: float            # girth of the end protrusion part-way along it (0 without one)
-    protrudes: bool = False     # a prominent tip (not a bump) sticks out of this end
+    prominence: float = 0.0     # persistence of its most prominent tip (0 without tips)
     features: dict[int, str] = field(default_factory=dict)   # tip → "flat" (ear-like) or "thin" (horn-like)
+
+    @property
+    def protrudes(self) -> bool:
+        """A prominent tip (not a bump) sticks out of this end."""
+        return self.prominence >= CANDIDATE_PERSISTENCE
+
+    @property
+    def presence(self) -> float:
+        """How surely something sticks out of this end, in [0, 1]: 0 up to ``PRESENCE_FAINT``, 1
+        from ``PRESENCE_FULL``, log-linear between (a stub of a tail near ``CANDIDATE_PERSISTENCE``
+        counts about half, whichever side of it a resolution puts it)."""
+        if self.prominence <= PRESENCE_FAINT:
+            return 0.0
+        return float(np.clip(np.log(self.prominence / PRESENCE_FAINT) / np.log(PRESENCE_FULL / PRESENCE_FAINT), 0.0, 1.0))
 
 
 def leg_top_distances(graph, legs: np.ndarray, feet) -> dict[int, np.ndarray]:
@@ -452,7 +469,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     thickness = 0.0
     if main_tip is not None:
         thickness = max(_ring_length(vertices, faces, distance[main_tip], f * reach[main_tip]) for f in (0.1, 0.2, 0.3))
-    protrudes = any(persistence[t] >= CANDIDATE_PERSISTENCE for t in tips)
+    prominence = max((persistence[t] for t in tips), default=0.0)
     # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip nor a
     # tip beside it (MUZZLE_SHARE: the wolf's lower jaw, a flat sheet 0.08 of its reach from its
     # nose, was cut as its ears; every ear and horn we have lies 0.30 or more of it away).
@@ -464,7 +481,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
             flat = ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE
             thin = ring[t] < APPENDAGE_RING * widest
             features[t] = "thin" if thin and not flat else "flat"
-    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, protrudes, features)
+    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence, features)
 
 
 @dataclass
@@ -492,7 +509,7 @@ def decide_head(first: End, second: End, forward_hint=None, vertices=None) -> En
         cues["thickness"] = float(np.clip(np.log2(first.thickness / second.thickness), -1.0, 1.0))
     else:
         cues["thickness"] = 0.0
-    cues["presence"] = float(first.protrudes) - float(second.protrudes)
+    cues["presence"] = first.presence - second.presence
     total = sum(cues.values())
     if forward_hint is not None and vertices is not None:
         along = (first.centre - second.centre) @ np.asarray(forward_hint, dtype=float)
