@@ -319,6 +319,7 @@ class End:
     mirror_pairs: list[tuple[int, int]]
     thickness: float            # girth of the end protrusion part-way along it (0 without one)
     prominence: float = 0.0     # persistence of its most prominent tip (0 without tips)
+    prominent_tip: int | None = None   # that tip (a pig's curly tail, thinner than a bump on its rump beside it)
     features: dict[int, str] = field(default_factory=dict)   # tip → "flat" (ear-like) or "thin" (horn-like)
 
     @property
@@ -469,7 +470,8 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     thickness = 0.0
     if main_tip is not None:
         thickness = max(_ring_length(vertices, faces, distance[main_tip], f * reach[main_tip]) for f in (0.1, 0.2, 0.3))
-    prominence = max((persistence[t] for t in tips), default=0.0)
+    prominent_tip = max(tips, key=lambda t: persistence[t], default=None)
+    prominence = 0.0 if prominent_tip is None else persistence[prominent_tip]
     # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip nor a
     # tip beside it (MUZZLE_SHARE: the wolf's lower jaw, a flat sheet 0.08 of its reach from its
     # nose, was cut as its ears; every ear and horn we have lies 0.30 or more of it away).
@@ -481,7 +483,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
             flat = ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE
             thin = ring[t] < APPENDAGE_RING * widest
             features[t] = "thin" if thin and not flat else "flat"
-    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence, features)
+    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence, prominent_tip, features)
 
 
 @dataclass

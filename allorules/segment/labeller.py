@@ -623,8 +623,9 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     """Take the tail out of the torso, ears, horns and a trunk out of the head (labels in place).
 
     Each is followed from its tip by geodesic rings to where it grows from (:func:`_follow_tip`)
-    and cut by the plane across its root there: the tail tip of the tail end when
-    it sticks out prominently; the head's features (flat: ears; thin tubes: horns); the head tip
+    and cut by the plane across its root there: the tail end's most prominent tip when it sticks
+    out prominently (not its main tip: a pig's curly tail is thinner than a bump on its rump, which
+    the head-or-tail cues take as that end's protrusion); the head's features (flat: ears; thin tubes: horns); the head tip
     when it is the end of a tube at least TRUNK_LENGTH radii long (a trunk). A cut is kept only
     within the region it grows from (torso, head), and an ear or horn only when it is smaller than
     APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears and horns left of it, a tail
@@ -633,9 +634,9 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     tail_index, ears_index, horns_index, trunk_index = (ALL_REGIONS.index(name) for name in APPENDAGES)
     cuts = []
     tail = ends.tail
-    if tail.main_tip is not None and tail.protrudes:
+    if tail.protrudes:   # from the tail end's most prominent tip: the tail is what sticks out most there
         torso_area = mass[(labels == CHEST) | (labels == ABDOMEN)].sum()
-        cuts.append((tail.main_tip, tail.girdle, (CHEST, ABDOMEN), tail_index, TAIL_SHARE * torso_area))
+        cuts.append((tail.prominent_tip, tail.girdle, (CHEST, ABDOMEN), tail_index, TAIL_SHARE * torso_area))
     head = labels == HEAD
     head_area = mass[head].sum()
     for tip, kind in ends.head.features.items():
