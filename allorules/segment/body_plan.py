@@ -334,7 +334,8 @@ class End:
         counts about half, whichever side of it a resolution puts it)."""
         if self.prominence <= PRESENCE_FAINT:
             return 0.0
-        return float(np.clip(np.log(self.prominence / PRESENCE_FAINT) / np.log(PRESENCE_FULL / PRESENCE_FAINT), 0.0, 1.0))
+        span = np.log(PRESENCE_FULL / PRESENCE_FAINT)
+        return float(np.clip(np.log(self.prominence / PRESENCE_FAINT) / span, 0.0, 1.0))
 
 
 def leg_top_distances(graph, legs: np.ndarray, feet) -> dict[int, np.ndarray]:
@@ -483,7 +484,8 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
             flat = ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE
             thin = ring[t] < APPENDAGE_RING * widest
             features[t] = "thin" if thin and not flat else "flat"
-    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence, prominent_tip, features)
+    return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence,
+               prominent_tip, features)
 
 
 @dataclass

@@ -625,8 +625,9 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     Each is followed from its tip by geodesic rings to where it grows from (:func:`_follow_tip`)
     and cut by the plane across its root there: the tail end's most prominent tip when it sticks
     out prominently (not its main tip: a pig's curly tail is thinner than a bump on its rump, which
-    the head-or-tail cues take as that end's protrusion); the head's features (flat: ears; thin tubes: horns); the head tip
-    when it is the end of a tube at least TRUNK_LENGTH radii long (a trunk). A cut is kept only
+    the head-or-tail cues take as that end's protrusion); the head's features (flat: ears; thin
+    tubes: horns); the head tip when it is the end of a tube at least TRUNK_LENGTH radii long (a
+    trunk). A cut is kept only
     within the region it grows from (torso, head), and an ear or horn only when it is smaller than
     APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears and horns left of it, a tail
     TAIL_SHARE of the torso.

@@ -126,7 +126,8 @@ class HeldPart:
     region; 3e/d for a region held by a rule of exponent e on a measure of dimension d);
     ``ruled``: such a part's near zone lies inside it (its base takes the opening where the region
     before it left it, so that an isometric neck stays isometric) and its size is a variable of
-    the solver (the rule is met by the solver, the base's blend included)."""
+    the solver (the rule is met by the solver, the base's blend included); ``joined``: the other
+    open appendage regions held in this part, which touch it (an ear's horn)."""
 
     region: str
     members: np.ndarray
@@ -252,9 +253,10 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
 
     ``size_exponents``: regions held at another size than isometric (:func:`rule_held_regions`).
     Each connected part of a region is held; touching parts of open appendage regions (an ear and
-    a horn) are one part, named after the region with most of its faces (``joined``: the others). Its near opening is where it meets the side of the
-    body that holds the torso (``ROOT_REGIONS``; without them, the largest side); every other side
-    (the head beyond the neck) is its children. A part that does not touch that side, or has fewer
+    a horn) are one part, named after the region with most of its faces (``joined``: the others).
+    Its near opening is where it meets the side of the body that holds the torso
+    (``ROOT_REGIONS``; without them, the largest side); every other side (the head beyond the
+    neck) is its children. A part that does not touch that side, or has fewer
     than ``MIN_VERTICES`` vertices, is not held (a note says so)."""
     if body.labels is None or not regions:
         return HeldRegions(())
