@@ -627,10 +627,9 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     out prominently (not its main tip: a pig's curly tail is thinner than a bump on its rump, which
     the head-or-tail cues take as that end's protrusion); the head's features (flat: ears; thin
     tubes: horns); the head tip when it is the end of a tube at least TRUNK_LENGTH radii long (a
-    trunk). A cut is kept only
-    within the region it grows from (torso, head), and an ear or horn only when it is smaller than
-    APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears and horns left of it, a tail
-    TAIL_SHARE of the torso.
+    trunk). A cut is kept only within the region it grows from (torso, head), and an ear or horn
+    only when it is smaller than APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears
+    and horns left of it, a tail TAIL_SHARE of the torso.
     """
     tail_index, ears_index, horns_index, trunk_index = (ALL_REGIONS.index(name) for name in APPENDAGES)
     cuts = []

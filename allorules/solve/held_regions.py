@@ -256,8 +256,8 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
     a horn) are one part, named after the region with most of its faces (``joined``: the others).
     Its near opening is where it meets the side of the body that holds the torso
     (``ROOT_REGIONS``; without them, the largest side); every other side (the head beyond the
-    neck) is its children. A part that does not touch that side, or has fewer
-    than ``MIN_VERTICES`` vertices, is not held (a note says so)."""
+    neck) is its children. A part that does not touch that side, or has fewer than
+    ``MIN_VERTICES`` vertices, is not held (a note says so)."""
     if body.labels is None or not regions:
         return HeldRegions(())
     count = len(body.vertices)
