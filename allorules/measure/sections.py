@@ -21,7 +21,7 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg
 
 from allorules.mesh.geometry import vertex_areas
-from allorules.mesh.topology import directed_edges, face_adjacency
+from allorules.mesh.topology import boundary_edge_loops, directed_edges, face_adjacency
 from allorules.spectral.eigen import few_smallest_eigenpairs
 from allorules.spectral.laplacian import cotangent_laplacian
 
@@ -213,34 +213,79 @@ def isocontour_loops(
 
 
 def boundary_loops(vertices: np.ndarray, faces: np.ndarray) -> list[Loop]:
-    """The open boundary of a mesh as ordered closed loops (``faces`` = the face of each edge)."""
+    """The open boundary of a mesh as closed loops, one per connected component of its boundary
+    edges (the loops of :func:`~allorules.mesh.topology.boundary_edge_loops`); ``faces`` = the
+    face of each edge.
+
+    A loop is a closed walk over its component's edges in the faces' winding (an Euler circuit):
+    where a boundary passes through a vertex twice (a pinch, as a jagged region border on a fine
+    mesh or a painted label has: two faces of the region meeting at one vertex only), the walk
+    passes through it twice and the opening stays one loop, whose girth and centroid are the
+    whole opening's. (Kept to two neighbours per vertex, the chains of such a border broke into
+    pieces: the 382's foreleg at 200k vertices measured 0.83 for 0.53, its junction in six.) A
+    component the winding cannot walk (faces oriented inconsistently) is chained as before.
+    """
     vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    directed = directed_edges(faces)
-    face_of = np.tile(np.arange(len(faces)), 3)
-    _, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
-    on_boundary = counts[inverse.ravel()] == 1
-    edges, edge_faces = directed[on_boundary], face_of[on_boundary]
-    if len(edges) == 0:
+    edges, edge_loop, loop_count = boundary_edge_loops(np.asarray(faces, dtype=np.int64))
+    if loop_count == 0:
         return []
+    directed = directed_edges(faces)
+    face_of = dict(zip(map(tuple, directed.tolist()), np.tile(np.arange(len(faces)), 3).tolist()))
+    loops = []
+    for loop in range(loop_count):
+        own = edges[edge_loop == loop]
+        walk = _euler_circuit(own)
+        if walk is None:
+            loops.extend(_chained_loops(vertices, own, face_of))
+            continue
+        following = np.roll(walk, -1)
+        crossed = np.asarray([face_of[(p, q)] for p, q in zip(walk.tolist(), following.tolist())], dtype=np.int64)
+        loops.append(Loop(vertices[walk], crossed, float("nan"), True, walk))
+    return [loop for loop in loops if len(loop.points) >= 3]
+
+
+def _euler_circuit(edges: np.ndarray) -> np.ndarray | None:
+    """The vertices of a closed walk through every directed edge once (Hierholzer), or None when
+    there is none (a vertex with more edges in than out)."""
+    outgoing: dict[int, list[int]] = {}
+    balance: dict[int, int] = {}
+    for p, q in edges.tolist():
+        outgoing.setdefault(p, []).append(q)
+        balance[p] = balance.get(p, 0) + 1
+        balance[q] = balance.get(q, 0) - 1
+    if any(balance.values()):
+        return None
+    stack, walk = [int(edges[0, 0])], []
+    while stack:
+        vertex = stack[-1]
+        if outgoing.get(vertex):
+            stack.append(outgoing[vertex].pop())
+        else:
+            walk.append(stack.pop())
+    walk = walk[::-1][:-1]                     # the circuit, without repeating its start at the end
+    return np.asarray(walk, dtype=np.int64) if len(walk) == len(edges) else None
+
+
+def _chained_loops(vertices: np.ndarray, edges: np.ndarray, face_of: dict) -> list[Loop]:
+    """Loops of boundary edges chained through vertices of at most two of them (the fallback for a
+    boundary the faces' winding cannot walk)."""
     nodes, local = np.unique(edges, return_inverse=True)
     local = local.reshape(-1, 2)
     neighbours = np.full((len(nodes), 2), -1, dtype=np.int64)
     fill = np.zeros(len(nodes), dtype=np.int64)
-    face_of_edge = {}
-    for (p, q), face in zip(local.tolist(), edge_faces.tolist()):
+    for p, q in local.tolist():
         for x, y in ((p, q), (q, p)):
             if fill[x] < 2:
                 neighbours[x, fill[x]] = y
                 fill[x] += 1
-        face_of_edge[(min(p, q), max(p, q))] = face
     loops = []
     for order, closed in _chain(neighbours):
         if len(order) < 3:
             continue
-        following = np.roll(order, -1) if closed else order[1:]
-        crossed = [face_of_edge.get((min(p, q), max(p, q)), -1) for p, q in zip(order.tolist(), following.tolist())]
-        loops.append(Loop(vertices[nodes[order]], np.asarray(crossed, dtype=np.int64), float("nan"), closed, nodes[order]))
+        ids = nodes[order]
+        following = np.roll(ids, -1) if closed else ids[1:]
+        crossed = [face_of.get((p, q), face_of.get((q, p), -1)) for p, q in zip(ids.tolist(), following.tolist())]
+        loops.append(Loop(vertices[ids], np.asarray(crossed, dtype=np.int64), float("nan"), closed, ids))
     return loops
 
 
