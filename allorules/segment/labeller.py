@@ -617,6 +617,7 @@ TRUNK_LENGTH = 3.0        # a nose followed as a tube this many of its radii bef
 APPENDAGE_SHARE = 0.4     # an ear or horn cut larger than this share of the head is not one
 TRUNK_SHARE = 0.7         # nor a trunk larger than this share (the head is more than its nose)
 TAIL_SHARE = 0.3          # nor a tail larger than this share of the torso
+TAIL_ROOT_SPREAD = 2.0    # a tail's root reaches at most this many of its radii from its axis
 
 
 def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance) -> None:
@@ -651,12 +652,20 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
         followed = _follow_tip(vertices, faces, graph, tip, field, float(field[girdle]))
         if followed is None:
             continue
-        core, axis, _, length, root, reach = followed
+        core, axis, centre, length, root, reach = followed
         if index == trunk_index and length < TRUNK_LENGTH:
             continue
         # all of it below its junction's ring, and what the tip reaches below the plane across its
-        # root (a sweep would run on into a body that is not below the root, as a leg's belly is)
-        candidate = core | ((field < reach) & ((vertices - root) @ axis < 0))
+        # root (a sweep would run on into a body that is not below the root, as a leg's belly is);
+        # a tail's within TAIL_ROOT_SPREAD of its radii of its axis: a raised tail's root plane
+        # tilts, and on the tip's side of it lay the back of the bull 386's rump, a third of its
+        # tail region (the head's features are bounded by APPENDAGE_SHARE: the pig 388's ears, held
+        # to their axis, passed it with the cheeks under them)
+        offset = vertices - root
+        below = (field < reach) & (offset @ axis < 0)
+        if index == tail_index:
+            below &= np.linalg.norm(offset - np.outer(offset @ axis, axis), axis=1) < TAIL_ROOT_SPREAD * np.linalg.norm(root - centre)
+        candidate = core | below
         parts = vertex_components(graph, candidate)
         region = candidate & (parts == parts[tip])
         region &= np.isin(labels, within)
