@@ -927,3 +927,23 @@ def test_a_bowtie_boundary_is_one_loop_through_its_pinch_twice():
     assert sorted(loop.vertex_ids.tolist()) == [0, 0, 1, 2, 3, 4]
     assert loop.girth == pytest.approx(2 * (2 + np.sqrt(2)))
     assert sorted(loop.faces.tolist()) == [0, 0, 0, 1, 1, 1]
+
+
+def test_a_moved_body_measured_with_the_references_choices_keeps_its_tape_path(monkeypatch):
+    """Heart girth chooses what the tape goes round (the chest's own sections, the torso's, the
+    body's) from how many levels each gives. Made afresh on every step of a run, that choice
+    flipped on the bull 386 at ×2 (chest, then torso: 12 % longer) and the run chased the jump;
+    :func:`carry_choices` keeps the reference's choice and cuts every curve anew."""
+    import allorules.measure.girth as girth
+    from allorules.measure.parts import carry_choices
+
+    body = generate_quadruped("horse", vertices=2000).body()
+    reference = chest_girth(body)
+    assert measured(body).chest_candidates[1] == "part"
+    moved = Body(1.3 * body.vertices, body.faces, body.labels, body.region_names, body.frame)
+    # a fresh measure that would now choose otherwise (here: its margin behind the forelimbs)
+    monkeypatch.setattr(girth, "CHEST_LIMIT_MARGINS", (0.4,))
+    fresh = chest_girth(moved.with_vertices(moved.vertices.copy()))
+    assert fresh != pytest.approx(1.3 * reference, rel=1e-3)
+    kept = chest_girth(carry_choices(body, moved))
+    assert kept == pytest.approx(1.3 * reference, rel=1e-9)

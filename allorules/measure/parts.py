@@ -275,6 +275,26 @@ def carry_fields(reference: Body, body: Body) -> Body:
     return body
 
 
+def carry_choices(reference: Body, body: Body) -> Body:
+    """Measure ``body`` afresh but with the discrete choices made on ``reference`` (a moved copy of
+    the same mesh and labels): where heart girth is cut (the candidate levels' area quantiles, the
+    piece: chest, torso or body, and the margin behind the forelimbs,
+    :func:`allorules.measure.girth.chest_girth`). Every
+    curve is cut anew on ``body``; only what the tape goes round stays. Made afresh, that choice
+    flipped within a run (the bull 386 at ×2: its chest's own sections at the input, the whole
+    torso's after a few steps, 12 % longer), and a run then chased the jump (heart girth exponent
+    0.515, every other rule lost). Returns ``body``.
+    """
+    source = measured(reference)
+    choice = source.chest_candidates if source.chest_candidates is not None else (
+        source.carried.chest_candidates if source.carried is not None else None)
+    if choice is not None:
+        target = measured(body)
+        target.carried = target.carried or Carried()
+        target.carried.chest_candidates = choice
+    return body
+
+
 def torso_axis(body: Body) -> np.ndarray:
     """Unit vector from the back of the torso to its front.
 

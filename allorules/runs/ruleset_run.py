@@ -46,7 +46,7 @@ import numpy as np
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
 from allorules.measure.length import trunk_length
-from allorules.measure.parts import TORSO_REGIONS
+from allorules.measure.parts import TORSO_REGIONS, carry_choices
 from allorules.measure.quality import distortions, flipped_faces, swollen_legs
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
@@ -284,7 +284,8 @@ def scale_with_ruleset(
 
 
 def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions, isometric: float) -> Body:
-    """A step's output as the next step starts from it, measured afresh: each leg turned back to its
+    """A step's output as the next step starts from it, measured afresh (with the run's choices of
+    what to measure, :func:`carry_choices`): each leg turned back to its
     direction on ``start`` (posture keep/upright) and, except after the last step, its centre
     line given back its shape (keep); then the feet put back and the held parts given their shape."""
     following = _fresh(solution.body)
@@ -300,7 +301,7 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         # the feet's shift reaches every vertex: the held parts given their shape once more
         sizes = {region: 1.0 + value for region, value in solution.sizes.items()}
         following = following.with_vertices(held.apply(following.vertices, isometric, sizes))
-    return following
+    return carry_choices(start, following)
 
 
 def _allowed_misses(ruleset, target: float) -> dict[str, float]:
@@ -434,8 +435,9 @@ def _report_open_regions(result, initial: Body, final: Body, ruleset, registry, 
 
 def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, measure, gauge, open_terms=(),
             held: HeldRegions | None = None, stretched: bool = False) -> None:
-    """Whole-run figures on fresh measurements of the output, and the convergence verdict."""
-    final = _fresh(result.body)
+    """Whole-run figures on fresh measurements of the output (with the input's choices of what to
+    measure, :func:`carry_choices`: the same tape path before and after), and the verdict."""
+    final = carry_choices(initial, _fresh(result.body))
     if not np.all(np.isfinite(final.vertices)):   # never hand back a NaN mesh as a result
         raise ScalingError("the scaled mesh has non-finite vertices; nothing was written")
     ratio = result.target_mass_ratio
