@@ -278,12 +278,12 @@ def carry_fields(reference: Body, body: Body) -> Body:
 def carry_choices(reference: Body, body: Body) -> Body:
     """Measure ``body`` afresh but with the discrete choices made on ``reference`` (a moved copy of
     the same mesh and labels): where heart girth is cut (the candidate levels' area quantiles, the
-    piece: chest, torso or body, and the margin behind the forelimbs,
-    :func:`allorules.measure.girth.chest_girth`). Every
-    curve is cut anew on ``body``; only what the tape goes round stays. Made afresh, that choice
-    flipped within a run (the bull 386 at ×2: its chest's own sections at the input, the whole
-    torso's after a few steps, 12 % longer), and a run then chased the jump (heart girth exponent
-    0.515, every other rule lost). Returns ``body``.
+    piece: chest, torso or body, and the margin behind the forelimbs; see
+    :func:`allorules.measure.girth.chest_girth`). Every curve is cut anew on ``body``; only what
+    the tape goes round stays. Made afresh, that choice flipped within a run (the bull 386 at ×2:
+    its chest's own sections at the input, the whole torso's after a few steps, 12 % longer), and
+    the run then chased the jump (heart girth exponent 0.515, every other rule lost). Returns
+    ``body``.
     """
     source = measured(reference)
     choice = source.chest_candidates if source.chest_candidates is not None else (

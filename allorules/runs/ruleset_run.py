@@ -285,9 +285,9 @@ def scale_with_ruleset(
 
 def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions, isometric: float) -> Body:
     """A step's output as the next step starts from it, measured afresh (with the run's choices of
-    what to measure, :func:`carry_choices`): each leg turned back to its
-    direction on ``start`` (posture keep/upright) and, except after the last step, its centre
-    line given back its shape (keep); then the feet put back and the held parts given their shape."""
+    what to measure, :func:`carry_choices`): each leg turned back to its direction on ``start``
+    (posture keep/upright) and, except after the last step, its centre line given back its shape
+    (keep); then the feet put back and the held parts given their shape."""
     following = _fresh(solution.body)
     if posture in ("keep", "upright"):
         following = following.with_vertices(restore_limb_axes(start, following))

@@ -664,7 +664,8 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
         offset = vertices - root
         below = (field < reach) & (offset @ axis < 0)
         if index == tail_index:
-            below &= np.linalg.norm(offset - np.outer(offset @ axis, axis), axis=1) < TAIL_ROOT_SPREAD * np.linalg.norm(root - centre)
+            across = np.linalg.norm(offset - np.outer(offset @ axis, axis), axis=1)
+            below &= across < TAIL_ROOT_SPREAD * np.linalg.norm(root - centre)
         candidate = core | below
         parts = vertex_components(graph, candidate)
         region = candidate & (parts == parts[tip])
