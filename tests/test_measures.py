@@ -890,9 +890,8 @@ def test_a_ragged_leg_border_is_one_opening_and_the_leg_length_stays_in_bounds()
     """A region border painted or carried to a fine mesh is ragged: two of the leg's faces meet at
     one vertex only (a pinch), and the boundary passes through that vertex twice. The opening is one
     loop (the whole junction), and the leg's length lies between those with the border cut off and
-    kept (before: the junction broke into
-    pieces, each a skeleton node beside the leg; the 382's foreleg at 200k vertices measured 0.83
-    for 0.53)."""
+    kept (before: the junction broke into pieces, each a skeleton node beside the leg; the 382's
+    foreleg at 200k vertices measured 0.83 for 0.53)."""
     from allorules.mesh.topology import boundary_edge_loops
 
     body = generate_quadruped("horse", vertices=6000).body()

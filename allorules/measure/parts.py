@@ -267,12 +267,9 @@ def carry_fields(reference: Body, body: Body) -> Body:
     if source.carried is not None:             # a carried body passed on as a reference
         carried.limbs.update(source.carried.limbs)
         carried.skeletons.update(source.carried.skeletons)
-        carried.chest_candidates = source.carried.chest_candidates
     carried.limbs.update(source.limbs)
     carried.skeletons.update(source.skeletons)
-    if source.chest_candidates is not None:
-        carried.chest_candidates = source.chest_candidates
-    return body
+    return carry_choices(reference, body)
 
 
 def carry_choices(reference: Body, body: Body) -> Body:

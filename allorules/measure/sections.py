@@ -226,11 +226,17 @@ def boundary_loops(vertices: np.ndarray, faces: np.ndarray) -> list[Loop]:
     component the winding cannot walk (faces oriented inconsistently) is chained as before.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
-    edges, edge_loop, loop_count = boundary_edge_loops(np.asarray(faces, dtype=np.int64))
+    faces = np.asarray(faces, dtype=np.int64)
+    edges, edge_loop, loop_count = boundary_edge_loops(faces)
     if loop_count == 0:
         return []
+    # the face of each boundary edge: its row among the faces' directed edges (row k: face k mod F)
     directed = directed_edges(faces)
-    face_of = dict(zip(map(tuple, directed.tolist()), np.tile(np.arange(len(faces)), 3).tolist()))
+    size = int(directed.max()) + 1
+    keys = directed[:, 0] * size + directed[:, 1]
+    order = np.argsort(keys)
+    rows = order[np.searchsorted(keys[order], edges[:, 0] * size + edges[:, 1])]
+    face_of = dict(zip(map(tuple, edges.tolist()), (rows % len(faces)).tolist()))
     loops = []
     for loop in range(loop_count):
         own = edges[edge_loop == loop]
