@@ -795,7 +795,7 @@ def isocontour_profile(vertices, faces, field, levels):
 PROFILE_LEVELS = 160
 BEND_SHARE = 6             # the bend is measured between chords of 1/BEND_SHARE of the profile
 MIN_NECK_LENGTH = 1.0      # a neck runs at least one of its radii from the bend to its base
-MIN_NARROWING = 0.25       # a bend whose neck narrows over fewer of its radii yields to one as sharp whose neck does
+MIN_NARROWING = 0.25       # a neck that narrows over fewer of its radii does not count as narrowing
 BEND_TIE = 0.9             # as sharp: at least this share of its turn
 
 
@@ -849,20 +849,22 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
         if norms > 0:
             turn[k] = np.arccos(np.clip(before @ after / norms, -1.0, 1.0))
     # Candidate bends: the local maxima of the turn at least half as sharp as the sharpest, the
-    # sharpest first. The head/neck bend is followed by a neck (see _follow_neck): the sections
-    # first narrow (from the back of the head into the neck) and the tube then runs at least
-    # MIN_NECK_LENGTH of its radii before flaring into the chest. The first candidate that
-    # shows both wins (a camel's S-shaped neck bends sharply again where it enters the chest,
-    # and from there the sections only grow), unless its narrowing is shorter than MIN_NARROWING
-    # radii (no more than noise) and a bend about as sharp (BEND_TIE) shows a longer one: the
-    # camel Loop-subdivided to 200k has two bends equally sharp, 74.9° where the neck enters the
-    # chest and 74.1° at the head, and from the first the sections narrow over 0.13 radii, from
-    # the second over 1.6. Where no bend as sharp shows a long neck that narrows, one whose short
-    # neck narrows will do: the pig 383's snout bends as sharply as its head, and from the snout
-    # the whole head runs on as a "neck" 7 radii long that narrows over 0.14 of them as it comes
-    # and none at 200k, while from its head's bend the neck narrows over 0.46 and runs half a
-    # radius (its head 0.203 of the surface or 0.123 with the resolution). Where none shows both,
-    # the sharpest bend with a tube.
+    # sharpest first, each followed down its neck (see _follow_neck): from the head/neck bend the
+    # sections first narrow (from the back of the head into the neck) and the tube then runs at
+    # least MIN_NECK_LENGTH of its radii before flaring into the chest. The sharpest bend with such
+    # a long neck (else the sharpest) sets the bar; of the bends about as sharp (BEND_TIE), the one
+    # whose neck narrows over the most radii wins, if over MIN_NARROWING (less is noise). A camel's
+    # S-shaped neck bends sharply again where it enters the chest, and from there the sections only
+    # grow: the camel Loop-subdivided to 200k has two bends equally sharp, 74.9° there and 74.1° at
+    # the head, whose sections narrow over 0.13 and 1.6 radii. The pig 383's snout bends as sharply
+    # as its head, and from the snout the whole head runs on as a "neck" 7 radii long that narrows
+    # over 0.14-0.28 of them with the resolution, while from its head's bend the neck narrows over
+    # 0.31-0.46 and runs half a radius. Decimated to 2,500 vertices its head's bend (72.9°, as
+    # sharp as the snout's 76.5°) narrows over 0.31 radii; a short neck's narrowing counted only
+    # where no long neck narrowed, and a less sharp bend's long one did (0.50), so the snout won
+    # (head 0.205 of the surface, 0.123 as it comes); now the head's bend does (0.145). Where the
+    # snout bends much more sharply (86° at 3,500 vertices, the head 72.5°) the snout still wins.
+    # Where none narrows, the bar's bend.
     peaks = [k for k in range(1, len(levels) - 1)
              if turn[k] >= turn[k - 1] and turn[k] > turn[k + 1] and turn[k] >= 0.5 * turn.max()]
     peaks.sort(key=lambda k: -turn[k])
@@ -880,16 +882,14 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
         if neck is None:
             continue
         found.append((bend, neck_direction, neck))
-        if neck[3] >= MIN_NARROWING and neck[2] >= MIN_NECK_LENGTH:
-            break
     if not found:
         return None, None
     necks = [candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH]
-    narrowing = ([candidate for candidate in necks if candidate[2][3] >= MIN_NARROWING]
-                 or [candidate for candidate in found if candidate[2][3] >= MIN_NARROWING])   # a short neck's
     chosen = necks[0] if necks else found[0]
-    if narrowing and turn[narrowing[0][0]] >= BEND_TIE * turn[chosen[0]]:
-        chosen = narrowing[0]
+    as_sharp = [candidate for candidate in found if turn[candidate[0]] >= BEND_TIE * turn[chosen[0]]]
+    narrowing = [candidate for candidate in as_sharp if candidate[2][3] >= MIN_NARROWING]
+    if narrowing:
+        chosen = max(narrowing, key=lambda candidate: candidate[2][3])
     bend, neck_direction, (base_point, base_direction, _, _, throat) = chosen
     # The head cut: at the throat (the neck's narrowest section in its head half, else the bend;
     # see _follow_neck), across the neck's axis as the tube-following found it (the chord from
