@@ -188,6 +188,25 @@ def test_the_summary_lists_what_each_output_should_be_looked_at_for(inputs, tmp_
     assert [row["warnings"] for row in result.rows if row["job"].endswith("x1.1")] == [None, None]
 
 
+def test_a_jobs_report_keeps_the_outputs_quality_and_the_summary_shows_it(inputs, tmp_path):
+    """What `allorules scale --report` says of the output (faces turned inside out, new
+    self-intersections, roughness, small features) a batch job's report says too, and its summary
+    row shows; the batch kept only the result and threw the quality it had measured away."""
+    copy_inputs(inputs, tmp_path)
+    manifest = write_manifest(tmp_path, MANIFEST.replace("  - ball.obj\n", "").replace("[0.9, 1.1]", "[1.1]"))
+    result = run_batch(manifest, jobs=1)
+    report = json.loads((tmp_path / "out" / "horse__global__x1.1" / "report.json").read_text())
+    quality = report["quality"]
+    assert quality["flipped_faces"]["count"] == 0 and quality["self_intersections"]["new_pairs"] == 0
+    assert quality["roughness"]["rms_degrees"] >= 0 and report["placement"] == "ground"
+    row = result.rows[0]
+    assert row["flipped_faces"] == 0 and row["self_intersections"] == 0
+    assert row["roughness_degrees"] == quality["roughness"]["rms_degrees"]
+    with open(tmp_path / "out" / "summary.csv", newline="") as handle:
+        cells = next(csv.DictReader(handle))
+    assert cells["flipped_faces"] == "0" and float(cells["roughness_degrees"]) == pytest.approx(row["roughness_degrees"], rel=1e-3)
+
+
 def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
     """Workers share one terminal: a warning from deep inside a job (export, say) names the job."""
     import logging

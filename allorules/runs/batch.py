@@ -541,7 +541,8 @@ def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers:
 # Summary
 
 SUMMARY_COLUMNS = ("job", "mesh", "ruleset", "ratio", "status", "mass_ratio", "stress_ratio", "converged",
-                   "worst_rule", "worst_rule_residual", "warnings", "seconds", "output", "error")
+                   "worst_rule", "worst_rule_residual", "flipped_faces", "self_intersections", "roughness_degrees",
+                   "worst_feature_change", "warnings", "seconds", "output", "error")
 
 
 def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
@@ -562,7 +563,23 @@ def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
     if rules:
         worst = max(rules, key=lambda rule: abs(rule.get("error") or 0.0))
         row.update(worst_rule=worst.get("id"), worst_rule_residual=worst.get("error"))
+    row.update(_quality_cells(report.get("quality")))
     return row
+
+
+def _quality_cells(quality: dict[str, Any] | None) -> dict[str, Any]:
+    """The summary's quality columns from a job report's ``quality`` (allorules.measure.quality):
+    faces turned inside out in the mesh written, new self-intersecting face pairs, roughness, the
+    worst small feature's shape change. Empty for a report without it (failed, or written before)."""
+    if not quality:
+        return {}
+    flipped = quality.get("written_flipped_faces") or quality.get("flipped_faces") or {}
+    crossings = quality.get("self_intersections") or {}
+    new_pairs = crossings.get("new_pairs")
+    return {"flipped_faces": flipped.get("count"),
+            "self_intersections": crossings.get("pairs") if new_pairs is None else new_pairs,
+            "roughness_degrees": (quality.get("roughness") or {}).get("rms_degrees"),
+            "worst_feature_change": quality.get("worst_feature_change")}
 
 
 def _cell(value: Any) -> str:

@@ -142,6 +142,7 @@ def scale_job(job: Job, folder: Path) -> dict[str, Any]:
     saved = pipeline.save_output(run, folder / job.output_name, overwrite=True)
     report = run.report()
     return {"repairs": report.pop("repairs"), "labels": report.pop("labels"), "result": run.result.as_dict(),
+            "working_mesh": report["working_mesh"], "placement": report["placement"], "quality": report["quality"],
             "carried": list(saved.carried), "notes": list(saved.notes)}
 
 
