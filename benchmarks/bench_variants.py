@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,7 @@ def main() -> None:
         raise SystemExit(f"{SHARED} is not present")
     from allorules.runs.batch import run_batch
 
+    logging.basicConfig(level=logging.INFO, format="%(message)s")   # the batch's progress, one line per job
     work = options.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     variants = make_variants(work)
