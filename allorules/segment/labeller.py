@@ -425,8 +425,7 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
             below |= core
         parts = vertex_components(graph, below)
         claimed[k] = below & (parts == parts[foot])
-        rise = POOL_RISE * (level - height[foot])
-        far = [pool for pool in pools if level - pool[0] > rise]
+        far = [pool for pool in pools if level - pool[0] > POOL_RISE * (level - height[foot])]
         grown = _pool_grown_into_body(graph, mass, claimed[k], far, substantial)
         if grown is not None:   # the leg met the body there: cut where it did
             level = far[grown][0]
