@@ -622,6 +622,7 @@ def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, dis
     if field is None:
         return
     reach = 0.0
+    features = np.zeros(len(vertices), dtype=bool)
     for tip in ends.head.features:
         if labels[tip] != NECK or tip not in distance:
             continue
@@ -632,9 +633,10 @@ def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, dis
         radius = float(np.linalg.norm(root - centre))
         nearest = int(np.argmin(np.linalg.norm(vertices - root, axis=1)))
         reach = max(reach, float(field[nearest]) + radius)
+        features |= core   # and the feature itself: a horn bent back reaches farther from the nose than its root
     if reach <= 0:
         return
-    front = np.isin(labels, (HEAD, NECK)) & (field < reach)
+    front = np.isin(labels, (HEAD, NECK)) & ((field < reach) | features)
     parts = vertex_components(graph, front)
     head = front & (parts == parts[head_tip])
     if (labels[head] == NECK).all() or (np.isin(labels, (HEAD, NECK)) & ~head).sum() == 0:
