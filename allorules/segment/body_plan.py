@@ -14,7 +14,8 @@ nearly as they were, and which do not depend on the file's orientation, units or
    girdles), the two legs of a pair are mirror images (equal length from the foot to where the pair
    branches, equal AGD), fore and hind legs are of a kind (lengths within a factor), and the feet
    are prominent tips. Each departure costs a penalty of about one where it
-   is clearly wrong; a ground plane the four feet stand on (the common case) lowers the cost. The
+   is clearly wrong; a ground plane the four feet stand on (the common case) at the end of legs
+   reaching down to it lowers the cost (a horn's tip may lie on such a plane too). The
    cheapest hypothesis wins; ``feet`` confidence is its cost margin over the next one.
 3. **Fore or hind** (:func:`_head_tail_cues`). Of the two ends, the head end is decided by
    independent cues, each an evidence in [−1, 1]:
@@ -490,11 +491,12 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
                  or ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE for t in tips}
     persistence = {int(t): float(p) for t, p in zip(extremities.vertices, extremities.persistence)}
     agd = {int(t): float(g) for t, g in zip(extremities.vertices, extremities.agd)}
-    # Mirror pairs: two prominent tips alike in AGD and reach, well apart (ears, horns), and alike in
-    # prominence or else in girth and lying straight across the body. Of two twins the elder keeps what the pair
-    # stands above the body, the younger only what it stands above the saddle between them (a
-    # dog's long horns: 0.74 and 0.30), so their prominence can differ; then they are told from a
-    # nose and a bump behind it (alike in girth too) by lying across it, as the pair's leg tops do.
+    # Mirror pairs: two prominent tips alike in AGD and reach, well apart (ears, horns), and alike
+    # in prominence or else in girth and lying straight across the body. Of two twins the elder
+    # keeps what the pair stands above the body, the younger only what it stands above the saddle
+    # between them (a dog's long horns: 0.74 and 0.30), so their prominence can differ; then they
+    # are told from a nose and a bump behind it (alike in girth too) by lying across the body, as
+    # the pair's leg tops do.
     mirror_pairs, twinned = [], set()
     for t1, t2 in itertools.combinations(tips, 2):
         if min(persistence[t1], persistence[t2]) < MIRROR_PERSISTENCE:

@@ -617,7 +617,8 @@ def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, dis
     """Ears and horns grow from the head: when the head/neck cut left one of them in the neck (an
     animal with no visible neck, whose bend is the muzzle's), the head is taken back to just
     behind the farthest one's root: every vertex of the head or neck nearer (geodesically) to the
-    head tip than that root plus the root's radius. The neck keeps what lies behind."""
+    head tip than that root plus the root's radius, and the features themselves (a horn bent back
+    or down reaches farther from the head tip than its root). The neck keeps what lies behind."""
     field = distance.get(head_tip)
     if field is None:
         return
