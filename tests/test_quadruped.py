@@ -352,3 +352,19 @@ def test_generate_command_writes_mesh_labels_and_truth(tmp_path, capsys):
     assert main(arguments + ["--force"]) == 0
     assert main(["generate", "-o", str(tmp_path / "x.obj"), "--set", "neck_length"]) != 0
     assert not (tmp_path / "x.obj").exists()
+
+
+def test_generate_command_stands_the_animal_in_a_pose(tmp_path, capsys):
+    """``--pose`` gives the posed animal the library makes (same faces, the standing labels); a pose
+    the generator does not know is refused with the list, nothing written."""
+    out, labels, truth = tmp_path / "galloping.obj", tmp_path / "labels.json", tmp_path / "truth.json"
+    assert main(["generate", "--vertices", "1200", "--pose", "gallop", "-o", str(out), "--labels", str(labels),
+                 "--truth", str(truth)]) == 0
+    mesh = trimesh.load(out, process=False)
+    expected = generate_quadruped("horse", 1200, pose="gallop")
+    assert np.allclose(mesh.vertices, expected.vertices, atol=1e-5)
+    assert not np.allclose(mesh.vertices, generate_quadruped("horse", 1200).vertices, atol=1e-3)
+    assert json.loads(labels.read_text())["labels"] == expected.labels.tolist()
+    assert json.loads(truth.read_text())["pose"] == "gallop"
+    assert main(["generate", "-o", str(tmp_path / "x.obj"), "--pose", "dance"]) != 0
+    assert "unknown pose 'dance'" in capsys.readouterr().err and not (tmp_path / "x.obj").exists()

@@ -26,6 +26,9 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         help="about how many vertices (±20%%, default 8000)")
     parser.add_argument("--seed", type=int, default=0,
                         help="0: the preset exactly; other seeds vary every length by up to ±8%%")
+    parser.add_argument("--pose", default=None, metavar="NAME",
+                        help="stand it in a pose (walk, gallop, rear, graze, sit, lie, curl; default: standing); "
+                        "its labels and truth stay the standing animal's (docs/quadruped.md, Poses)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", dest="overrides",
                         help="override one parameter, e.g. --set neck_length=0.9 (repeatable)")
     parser.add_argument("--labels", metavar="LABELS.json", help="also write per-vertex region labels")
@@ -57,17 +60,17 @@ def run(arguments: argparse.Namespace) -> int:
     check_outputs([Output.of(arguments.output, "-o", SUPPORTED_FORMATS), Output.of(arguments.labels, "--labels", JSON),
                    Output.of(arguments.truth, "--truth", JSON)], force=arguments.force)
 
-    animal = generate_quadruped(arguments.preset, arguments.vertices, seed=arguments.seed,
+    animal = generate_quadruped(arguments.preset, arguments.vertices, seed=arguments.seed, pose=arguments.pose,
                                 **_overrides(arguments.overrides))
     save_mesh(arguments.output, animal.vertices, animal.faces, overwrite=arguments.force)
-    log.info("wrote %s: %s, %d vertices, %d faces", arguments.output, arguments.preset,
-             len(animal.vertices), len(animal.faces))
+    log.info("wrote %s: %s%s, %d vertices, %d faces", arguments.output, arguments.preset,
+             f" ({arguments.pose})" if arguments.pose else "", len(animal.vertices), len(animal.faces))
     if arguments.labels:
         atomic_write(arguments.labels, json.dumps(animal.labels_document()))
         log.info("wrote %s", arguments.labels)
     if arguments.truth:
         document = animal.truth.as_dict()
-        document.update(preset=arguments.preset, seed=arguments.seed, vertices=len(animal.vertices),
+        document.update(preset=arguments.preset, seed=arguments.seed, pose=arguments.pose or "stand", vertices=len(animal.vertices),
                         parameters=animal.parameters.as_dict())
         atomic_write(arguments.truth, json.dumps(document, indent=2))
         log.info("wrote %s", arguments.truth)
