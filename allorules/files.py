@@ -311,6 +311,13 @@ def _same_file(first: Path, second: Path) -> bool:
         return False
 
 
+def unconverged_path(path: str | Path) -> Path:
+    """Where the mesh of a run that missed its targets goes instead of ``path``:
+    ``big.obj`` → ``big.unconverged.obj`` (never under the name asked for)."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.unconverged{path.suffix}")
+
+
 def default_output_path(input_path: str | Path, *, suffix: str = "_scaled", extension: str | None = None) -> Path:
     """A name beside the input that does not exist yet: ``horse.obj`` → ``horse_scaled.obj``,
     then ``horse_scaled-2.obj``, ``horse_scaled-3.obj``, …"""

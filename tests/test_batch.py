@@ -207,6 +207,29 @@ def test_a_jobs_report_keeps_the_outputs_quality_and_the_summary_shows_it(inputs
     assert cells["flipped_faces"] == "0" and float(cells["roughness_degrees"]) == pytest.approx(row["roughness_degrees"], rel=1e-3)
 
 
+def test_a_job_that_misses_its_targets_fails_and_writes_only_the_unconverged_mesh(inputs, tmp_path):
+    """As `allorules scale --keep-unconverged`: the mesh goes to OUT.unconverged.EXT, never under the
+    name asked for, and the job fails saying so. A batch wrote it as the output and counted the job
+    done (the generated dog walking at x2, its trunk stretched to 0.475, among 24 posed runs)."""
+    copy_inputs(inputs, tmp_path)
+    (tmp_path / "contradiction.yaml").write_text(
+        "name: contradiction\nextends: quadruped\nrules:\n  - id: foreleg-length-again\n    region: forelimbs\n"
+        "    measure: length\n    exponent: 1.0\nsolver:\n  max_evaluations: 40\n")
+    manifest = write_manifest(tmp_path, MANIFEST.replace("  - ball.obj\n", "").replace("[0.9, 1.1]", "[1.1]")
+                              .replace("[global]", "[contradiction.yaml]"))
+    folder = tmp_path / "out" / "horse__contradiction__x1.1"
+    folder.mkdir(parents=True)
+    (folder / "horse_contradiction_x1.1.obj").write_text("left by an earlier run that converged")
+    result = run_batch(manifest, jobs=1)
+    row = result.rows[0]
+    assert row["status"] == "failed" and row["converged"] is False
+    assert "did not reach its targets" in row["error"] and "horse_contradiction_x1.1.unconverged.obj" in row["error"]
+    assert row["output"] == str(Path("horse__contradiction__x1.1") / "horse_contradiction_x1.1.unconverged.obj")
+    assert (folder / "horse_contradiction_x1.1.unconverged.obj").is_file()
+    assert not (folder / "horse_contradiction_x1.1.obj").exists()
+    assert "0 done, 1 failed, 0 not run" in (tmp_path / "out" / "summary.md").read_text()
+
+
 def test_a_jobs_warnings_name_the_job(inputs, tmp_path, caplog):
     """Workers share one terminal: a warning from deep inside a job (export, say) names the job."""
     import logging

@@ -168,7 +168,7 @@ def _section_choice(text: str | None):
 def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> Path:
     """The output mesh, checked with every other output (picture, report, the unconverged name)
     against every input of the command (allorules.files.check_outputs), before any work."""
-    from allorules.files import JSON, PNG, Output, check_outputs
+    from allorules.files import JSON, PNG, Output, check_outputs, unconverged_path
     from allorules.output.export import SUPPORTED_FORMATS
 
     if not arguments.output:
@@ -177,7 +177,7 @@ def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> P
     outputs = [Output.of(output, "-o", SUPPORTED_FORMATS), Output.of(arguments.png, "--png", PNG),
                Output.of(arguments.report, "--report", JSON)]
     if arguments.keep_unconverged:
-        outputs.append(Output.of(output.with_name(f"{output.stem}.unconverged{output.suffix}"),
+        outputs.append(Output.of(unconverged_path(output),
                                  "--keep-unconverged", SUPPORTED_FORMATS))
     check_outputs(outputs, command_inputs(arguments, scaling, registry), force=arguments.force)
     return output
@@ -208,6 +208,7 @@ def write_report(path: str | None, report: dict) -> None:
 
 
 def run(arguments: argparse.Namespace) -> int:
+    from allorules.files import unconverged_path
     from allorules.plugins.registry import registry_for
     from allorules.runs import pipeline
     from allorules.runs.progress import run_progress
@@ -241,7 +242,7 @@ def run(arguments: argparse.Namespace) -> int:
 
     written = output if result_run.converged else None
     if not result_run.converged and arguments.keep_unconverged:
-        written = output.with_name(f"{output.stem}.unconverged{output.suffix}")   # checked before the run
+        written = unconverged_path(output)   # checked before the run
     if written is not None:
         pipeline.save_output(result_run, written, overwrite=arguments.force)
     if arguments.png:   # also for a run that missed: there must be something to look at
@@ -256,7 +257,7 @@ def run(arguments: argparse.Namespace) -> int:
         for message in result_run.result.messages[1:]:   # the first one is the error line's
             log.warning("%s", message)
         where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
-            f"no mesh written (use --keep-unconverged to write it as {output.stem}.unconverged{output.suffix})"
+            f"no mesh written (use --keep-unconverged to write it as {unconverged_path(output).name})"
         what = f"ruleset {scaling.ruleset.name!r}" if hasattr(scaling, "ruleset") else "the global run"
         raise ScalingError(f"{what} did not reach its targets at mass ratio {scaling.mass_ratio:g}: "
                            f"{result_run.result.messages[0]}; {where}")

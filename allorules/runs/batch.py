@@ -557,8 +557,8 @@ def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
     row.update(status=report.get("status"), seconds=report.get("seconds"), error=report.get("error"),
                mass_ratio=figures.get("mass_ratio"), stress_ratio=figures.get("stress_ratio"),
                converged=figures.get("converged"), warnings="; ".join(figures.get("warnings") or []) or None)
-    if report.get("status") == STATUS_DONE:
-        row["output"] = str(Path(job.id) / job.output_name)
+    if report.get("result") and report.get("output"):   # done, or missed its targets (the unconverged mesh)
+        row["output"] = str(Path(job.id) / report["output"])
     rules = figures.get("rules") or []
     if rules:
         worst = max(rules, key=lambda rule: abs(rule.get("error") or 0.0))

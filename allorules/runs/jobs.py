@@ -129,6 +129,7 @@ def is_finished(job: Job, folder: Path, fingerprint: str) -> bool:
 
 def scale_job(job: Job, folder: Path) -> dict[str, Any]:
     """Run one job through the pipeline (prepare, label, scale) and write its mesh; the report's figures."""
+    from allorules.files import unconverged_path
     from allorules.plugins.registry import registry_for
     from allorules.runs import pipeline
 
@@ -139,11 +140,22 @@ def scale_job(job: Job, folder: Path) -> dict[str, Any]:
         ruleset, registry = ruleset_with_plugins(job.ruleset, job.plugins)
         scaling = pipeline.RulesetScaling(ruleset, job.ratio)
     run = pipeline.run(job.mesh, scaling, registry=registry, labels=job.segmentation, modes=job.modes)
-    saved = pipeline.save_output(run, folder / job.output_name, overwrite=True)
+    # a run that missed its targets is written under the unconverged name only, and the job fails
+    # saying where (as `allorules scale --keep-unconverged`): a batch left alone must not leave a
+    # mesh that looks done
+    name = Path(job.output_name) if run.converged else unconverged_path(job.output_name)
+    if not run.converged:   # nor one an earlier run of this job (say, before a change of ruleset) wrote
+        (folder / job.output_name).unlink(missing_ok=True)
+    saved = pipeline.save_output(run, folder / name, overwrite=True)
     report = run.report()
-    return {"repairs": report.pop("repairs"), "labels": report.pop("labels"), "result": run.result.as_dict(),
-            "working_mesh": report["working_mesh"], "placement": report["placement"], "quality": report["quality"],
-            "carried": list(saved.carried), "notes": list(saved.notes)}
+    figures = {"repairs": report.pop("repairs"), "labels": report.pop("labels"), "result": run.result.as_dict(),
+               "working_mesh": report["working_mesh"], "placement": report["placement"], "quality": report["quality"],
+               "carried": list(saved.carried), "notes": list(saved.notes), "output": str(name)}
+    if not run.converged:
+        what = f"ruleset {job.ruleset!r}" if job.ruleset != GLOBAL else "the global run"
+        figures["error"] = (f"{what} did not reach its targets at mass ratio {job.ratio:g}: {run.result.messages[0]}; "
+                            f"the mesh was written to {name} (NOT {job.output_name})")
+    return figures
 
 
 def _write_json(path: Path, document: dict) -> None:
@@ -205,7 +217,7 @@ def _run_job(job: Job, output: Path, fingerprint: str, scale: Callable[[Job, Pat
                               "job": job.describe(), "fingerprint": fingerprint, "output": job.output_name}
     try:
         report.update((scale or scale_job)(job, folder))
-        report["status"] = STATUS_DONE
+        report["status"] = STATUS_FAILED if report.get("error") else STATUS_DONE
     except AllorulesError as error:
         report.update(status=STATUS_FAILED, error=str(error))
     except (KeyboardInterrupt, SystemExit):
