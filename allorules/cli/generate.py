@@ -70,8 +70,8 @@ def run(arguments: argparse.Namespace) -> int:
         log.info("wrote %s", arguments.labels)
     if arguments.truth:
         document = animal.truth.as_dict()
-        document.update(preset=arguments.preset, seed=arguments.seed, pose=arguments.pose or "stand", vertices=len(animal.vertices),
-                        parameters=animal.parameters.as_dict())
+        document.update(preset=arguments.preset, seed=arguments.seed, pose=arguments.pose or "stand",
+                        vertices=len(animal.vertices), parameters=animal.parameters.as_dict())
         atomic_write(arguments.truth, json.dumps(document, indent=2))
         log.info("wrote %s", arguments.truth)
     return 0

@@ -503,10 +503,11 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
             continue
         apart = vertices[t1] - vertices[t2]
         across = abs(apart @ lateral) >= MIRROR_ACROSS * np.linalg.norm(apart)
-        alike = (min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2])
-                 or (across and min(ring[t1], ring[t2]) > MIRROR_RING * max(ring[t1], ring[t2])))
-        alike = alike and abs(agd[t1] - agd[t2]) < MIRROR_AGD and abs(reach[t1] - reach[t2]) < MIRROR_REACH * max(reach[t1], reach[t2])
-        if alike and distance[t1][t2] > MIRROR_SPACING * max(reach[t1], reach[t2]):
+        placed_alike = (abs(agd[t1] - agd[t2]) < MIRROR_AGD
+                        and abs(reach[t1] - reach[t2]) < MIRROR_REACH * max(reach[t1], reach[t2]))
+        shaped_alike = (min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2])
+                        or (across and min(ring[t1], ring[t2]) > MIRROR_RING * max(ring[t1], ring[t2])))
+        if placed_alike and shaped_alike and distance[t1][t2] > MIRROR_SPACING * max(reach[t1], reach[t2]):
             mirror_pairs.append((t1, t2))
             twinned |= {t1, t2} if across else set()
     # The main tip lies on the animal's plane of symmetry: of the tips that are no appendage, the
