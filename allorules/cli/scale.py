@@ -258,9 +258,7 @@ def run(arguments: argparse.Namespace) -> int:
             log.warning("%s", message)
         where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
             f"no mesh written (use --keep-unconverged to write it as {unconverged_path(output).name})"
-        what = f"ruleset {scaling.ruleset.name!r}" if hasattr(scaling, "ruleset") else "the global run"
-        raise ScalingError(f"{what} did not reach its targets at mass ratio {scaling.mass_ratio:g}: "
-                           f"{result_run.result.messages[0]}; {where}")
+        raise ScalingError(f"{result_run.missed()}; {where}")
     if written is not None and hasattr(scaling, "ruleset"):
         print(f"wrote {written}")
     return 0

@@ -143,18 +143,17 @@ def scale_job(job: Job, folder: Path) -> dict[str, Any]:
     # a run that missed its targets is written under the unconverged name only, and the job fails
     # saying where (as `allorules scale --keep-unconverged`): a batch left alone must not leave a
     # mesh that looks done
-    name = Path(job.output_name) if run.converged else unconverged_path(job.output_name)
-    if not run.converged:   # nor one an earlier run of this job (say, before a change of ruleset) wrote
-        (folder / job.output_name).unlink(missing_ok=True)
+    name = Path(job.output_name)
+    if not run.converged:   # (and no mesh an earlier run of this job wrote under the output's name stays)
+        (folder / name).unlink(missing_ok=True)
+        name = unconverged_path(name)
     saved = pipeline.save_output(run, folder / name, overwrite=True)
     report = run.report()
     figures = {"repairs": report.pop("repairs"), "labels": report.pop("labels"), "result": run.result.as_dict(),
                "working_mesh": report["working_mesh"], "placement": report["placement"], "quality": report["quality"],
                "carried": list(saved.carried), "notes": list(saved.notes), "output": str(name)}
     if not run.converged:
-        what = f"ruleset {job.ruleset!r}" if job.ruleset != GLOBAL else "the global run"
-        figures["error"] = (f"{what} did not reach its targets at mass ratio {job.ratio:g}: {run.result.messages[0]}; "
-                            f"the mesh was written to {name} (NOT {job.output_name})")
+        figures["error"] = f"{run.missed()}; the mesh was written to {name} (NOT {job.output_name})"
     return figures
 
 

@@ -478,6 +478,13 @@ class Run:
     def converged(self) -> bool:
         return bool(self.result.converged)
 
+    def missed(self) -> str:
+        """What a run that did not converge missed, in one line (the front ends add where its mesh went)."""
+        what = f"ruleset {self.scaling.ruleset.name!r}" if hasattr(self.scaling, "ruleset") else "the global run"
+        first = self.result.messages[0] if self.result.messages else "a target missed"
+        ratio = getattr(self.scaling, "mass_ratio", None)
+        return f"{what} did not reach its targets" + (f" at mass ratio {ratio:g}" if ratio else "") + f": {first}"
+
     def body_vertices(self) -> np.ndarray:
         """The scaled positions of the user's prepared body (carried from the working mesh)."""
         if self.working is None:
