@@ -263,6 +263,17 @@ def test_elephant_trunk_is_not_a_foot(generated):
         assert area_agreement(labelled.labels == index, truth.labels == index, animal.vertices, animal.faces) >= 0.97
 
 
+def test_elephant_trunk_is_a_trunk(generated):
+    """The generated elephant's trunk (a tube 7-9 of its radii long) is cut from its head as a
+    trunk: TRUNK_LENGTH (5 radii; a wolf's upper jaw with its mouth open is 3.3) lets it through."""
+    animal = generated["elephant"]
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    mass = vertex_areas(animal.vertices, animal.faces)
+    trunk, head = labelled.region_mask("trunk"), truth_body(animal).region_mask("head")
+    assert mass[trunk].sum() > 0.1 * mass[head].sum()
+    assert mass[trunk & head].sum() > 0.95 * mass[trunk].sum()
+
+
 @pytest.mark.parametrize("preset", ["horse", "dog"])
 @pytest.mark.parametrize("transform", ["rotated", "mirrored", "tiny", "huge"])
 def test_labels_do_not_depend_on_orientation_mirroring_or_scale(generated, transform, preset):

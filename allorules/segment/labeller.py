@@ -645,7 +645,11 @@ def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, dis
     labels[head] = HEAD
 
 
-TRUNK_LENGTH = 3.0        # a nose followed as a tube this many of its radii before the head is a trunk
+# A nose followed as a tube this many of its radii before the head is a trunk: the generated
+# elephant's trunk is 7.2-9.1 of them long; a wolf's upper jaw, its mouth open, 3.3 (walking or
+# galloping, its head turned: labelled a trunk with 3) and the legs 4.3-4.6.
+TRUNK_LENGTH = 5.0
+TUBE_LENGTH = 3.0         # a tail hanging against the rump is its tube, when that tube is this many of its radii long
 APPENDAGE_SHARE = 0.4     # an ear or horn cut larger than this share of the head is not one
 TRUNK_SHARE = 0.7         # nor a trunk larger than this share (the head is more than its nose)
 TAIL_SHARE = 0.3          # nor a tail larger than this share of the torso
@@ -728,7 +732,7 @@ def _tube(vertices, faces, graph, tip, field, span) -> np.ndarray | None:
     The rings of the geodesic distance ``field`` from the tip: past the tip's cap a tube's rings
     lie farther from the tip than twice their radius (on a cap, a bump or a flat surface they do
     not). The tube is the tip's side of the first ring, past the narrowest such ring (before the
-    widest), whose radius is TUBE_GROWTH times the narrowest's; it is at least TRUNK_LENGTH of
+    widest), whose radius is TUBE_GROWTH times the narrowest's; it is at least TUBE_LENGTH of
     its radii long. Tighter than :func:`_follow_tip`'s core where the rings spread onto the body
     gradually (a tail hanging against the rump), and nothing for a bump (a cow's tailhead).
     """
@@ -744,7 +748,7 @@ def _tube(vertices, faces, graph, tip, field, span) -> np.ndarray | None:
     if not len(grown):
         return None
     end = levels[narrowest + int(grown[0]) - 1]
-    if end < TRUNK_LENGTH * radius[narrowest]:
+    if end < TUBE_LENGTH * radius[narrowest]:
         return None
     inside = field < end
     parts = vertex_components(graph, inside)
