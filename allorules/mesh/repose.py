@@ -26,7 +26,7 @@ import numpy as np
 from allorules.body import Body
 from allorules.errors import AllorulesError
 from allorules.mesh.geometry import smoothstep
-from allorules.mesh.quadruped_poses import LEGS, Pose
+from allorules.mesh.quadruped_poses import Pose
 from allorules.mesh.topology import vertex_components, vertex_graph
 
 # The regions whose surface around a part's joint turns with the part (blended).
@@ -85,11 +85,10 @@ def _legs(body: Body, graph, side: np.ndarray) -> dict[str, tuple[str, np.ndarra
     for region in ("forelimbs", "hindlimbs"):
         mask = _mask(body, (region,))
         components = vertex_components(graph, mask)
-        labels = [label for label in np.unique(components[mask])]
-        sizes = sorted(labels, key=lambda label: -np.count_nonzero(components == label))[:2]
-        if len(sizes) != 2:
+        pieces = sorted(np.unique(components[mask]), key=lambda piece: -np.count_nonzero(components == piece))[:2]
+        if len(pieces) != 2:
             raise AllorulesError(f"the {region} are not two separate legs; they cannot be posed")
-        parts = [components == label for label in sizes]
+        parts = [components == piece for piece in pieces]
         parts.sort(key=lambda part: -float((body.vertices[part].mean(axis=0) - centre) @ side))
         for part, name in zip(parts, ("left", "right")):
             legs[f"{region[:4]}-{name}"] = (region, part)
@@ -137,5 +136,3 @@ def repose(body: Body, pose: Pose) -> np.ndarray:
         moved = _turn(moved, joint.pivot, side, up_sign * math.radians(angle) * weight)
     return moved
 
-
-__all__ = ["LEGS", "repose"]
