@@ -16,6 +16,22 @@ def smoothstep(ramp: np.ndarray) -> np.ndarray:
     return ramp * ramp * (3.0 - 2.0 * ramp)
 
 
+def turn_about_line(points: np.ndarray, pivot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Each point turned about the line through ``pivot`` along the unit ``axis`` by its own
+    ``angle`` (radians, right-handed; Rodrigues' formula): the joints of the posed animals."""
+    offset = points - pivot
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    return pivot + offset * cos + np.cross(axis, offset) * sin + np.outer(offset @ axis, axis) * (1.0 - cos)
+
+
+def near_line(points: np.ndarray, point: np.ndarray, direction: np.ndarray, radius: float, blend: float) -> np.ndarray:
+    """1 within ``radius`` of the line through ``point`` along the unit ``direction``, 0 beyond
+    radius + blend, smooth between (:func:`smoothstep`)."""
+    offset = points - point
+    across = offset - np.outer(offset @ direction, direction)
+    return 1.0 - smoothstep((np.linalg.norm(across, axis=1) - radius) / blend)
+
+
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area of each triangle."""
     a, b, c = (vertices[faces[:, k]] for k in range(3))

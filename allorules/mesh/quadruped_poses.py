@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from allorules.mesh.geometry import smoothstep
+from allorules.mesh.geometry import near_line, smoothstep, turn_about_line
 
 LEGS = ("fore-left", "fore-right", "hind-left", "hind-right")
 
@@ -63,25 +63,9 @@ POSES: dict[str, Pose] = {
 }
 
 
-def _rotation_about_z(angle):
-    """Rotation matrices (n, 3, 3) about +Z by ``angle`` (radians, array)."""
-    c, s = np.cos(angle), np.sin(angle)
-    r = np.zeros((len(angle), 3, 3))
-    r[:, 0, 0], r[:, 0, 1], r[:, 1, 0], r[:, 1, 1], r[:, 2, 2] = c, -s, s, c, 1.0
-    return r
-
-
 def _turn(points, pivot, angle):
     """Each point turned about the Z-parallel line through ``pivot`` by its own ``angle``."""
-    return np.einsum("nij,nj->ni", _rotation_about_z(angle), points - pivot) + pivot
-
-
-
-def _near_line(points, point, direction, radius, blend):
-    """1 within ``radius`` of the line through ``point`` along ``direction``, 0 beyond radius + blend."""
-    offset = points - point
-    across = offset - np.outer(offset @ direction, direction)
-    return 1.0 - smoothstep((np.linalg.norm(across, axis=1) - radius) / blend)
+    return turn_about_line(points, pivot, np.array([0.0, 0.0, 1.0]), angle)
 
 
 def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, region_names) -> np.ndarray:
@@ -128,7 +112,7 @@ def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, 
         if angle:
             cut = cuts[name]
             along = (rest - cut.point) @ cut.normal
-            part = np.where(front, 1.0, _near_line(rest, cut.point, cut.normal, radius, 2 * p.limb_blend + radius))
+            part = np.where(front, 1.0, near_line(rest, cut.point, cut.normal, radius, 2 * p.limb_blend + radius))
             weight = smoothstep((along + radius) / (2 * radius)) * part
             moved = _turn(moved, cut.point, math.radians(angle) * weight * _up_sign(cut.normal))
     if pose.tail or pose.tail_curl:
@@ -158,7 +142,7 @@ def _pose_tail(layout, rest, moved, pose: Pose, labels_tail) -> np.ndarray:
     side = side * up
     offset = rest - root
     s = offset @ direction
-    part = np.where(labels_tail, 1.0, _near_line(rest, root, direction, p.tail_radius, 2 * p.limb_blend + p.tail_radius))
+    part = np.where(labels_tail, 1.0, near_line(rest, root, direction, p.tail_radius, 2 * p.limb_blend + p.tail_radius))
     weight = smoothstep((s + p.tail_radius) / (2 * p.tail_radius)) * part
     result = moved.copy()
     tail = weight > 0

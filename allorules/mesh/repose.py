@@ -25,7 +25,7 @@ import numpy as np
 
 from allorules.body import Body
 from allorules.errors import AllorulesError
-from allorules.mesh.geometry import smoothstep
+from allorules.mesh.geometry import near_line, smoothstep, turn_about_line
 from allorules.mesh.quadruped_poses import Pose
 from allorules.mesh.topology import vertex_components, vertex_graph
 
@@ -50,23 +50,12 @@ class _Joint:
         self.length = float(((vertices[part] - self.pivot) @ self.direction).max())
 
 
-def _turn(points: np.ndarray, pivot: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Each point turned about the line through ``pivot`` along the unit ``axis`` by its own
-    ``angle`` (radians; Rodrigues' formula)."""
-    offset = points - pivot
-    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    return (pivot + offset * cos + np.cross(axis, offset) * sin
-            + np.outer(offset @ axis, axis) * (1.0 - cos))
-
-
 def _weights(vertices: np.ndarray, joint: _Joint, part: np.ndarray, parent: np.ndarray) -> np.ndarray:
     """1 on the part beyond its joint, 0 behind it, blended over ± the joint's radius; the parent's
     surface within two radii of the joint's line blended alike."""
     along = (vertices - joint.pivot) @ joint.direction
     ramp = smoothstep((along + joint.radius) / (2.0 * joint.radius))
-    offset = vertices - joint.pivot
-    across = np.linalg.norm(offset - np.outer(along, joint.direction), axis=1)
-    near = 1.0 - smoothstep((across - joint.radius) / (2.0 * joint.radius))
+    near = near_line(vertices, joint.pivot, joint.direction, joint.radius, 2.0 * joint.radius)
     return np.where(part, ramp, np.where(parent & (along < 2.0 * joint.radius), ramp * near, 0.0))
 
 
@@ -119,10 +108,10 @@ def repose(body: Body, pose: Pose) -> np.ndarray:
             pivot = vertices[middle].mean(axis=0) if middle.any() else joint.pivot + 0.5 * joint.length * joint.direction
             band = 0.5 * joint.radius
             weight = np.where(part, smoothstep((along - 0.5 * joint.length + band) / (2.0 * band)), 0.0)
-            moved = _turn(moved, pivot, side, -knee * weight)
+            moved = turn_about_line(moved, pivot, side, -knee * weight)
         if swing:
             weight = _weights(vertices, joint, part, _mask(body, PARENTS[region]))
-            moved = _turn(moved, joint.pivot, side, swing * weight)
+            moved = turn_about_line(moved, joint.pivot, side, swing * weight)
     # The head about its joint with the neck, then the neck (carrying the head) about its base.
     for region, angle, carried in (("head", pose.head, ("head", "ears", "horns", "trunk")),
                                    ("neck", pose.neck, ("neck", "head", "ears", "horns", "trunk")),
@@ -133,6 +122,6 @@ def repose(body: Body, pose: Pose) -> np.ndarray:
         joint = _Joint(vertices, graph, part)
         weight = _weights(vertices, joint, part, _mask(body, PARENTS[region]))
         up_sign = 1.0 if joint.direction @ forward >= 0 else -1.0      # +side raises a forward-pointing part
-        moved = _turn(moved, joint.pivot, side, up_sign * math.radians(angle) * weight)
+        moved = turn_about_line(moved, joint.pivot, side, up_sign * math.radians(angle) * weight)
     return moved
 
