@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import textwrap
 
 import numpy as np
@@ -177,7 +178,18 @@ def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, mo
     assert not refused.converged
     assert any("no rule asks for it" in message for message in refused.messages), refused.messages
     assert refused.missed == ("trunk",) and refused.as_dict()["missed"] == ["trunk"]     # what the retries read
-    assert plain.missed == ()
+    assert plain.missed == () and plain.settle_trunk() is None
+    # the refusal says how to accept that trunk: a rule on it, which then converges
+    settle = refused.settle_trunk()
+    assert settle == refused.as_dict()["settle"] and "measure: trunk-length" in settle, settle
+    exponent = float(re.search(r"exponent: ([0-9.]+)\}", settle).group(1))
+    assert exponent == pytest.approx(plain.trunk_length_exponent, abs=0.006)
+    path = tmp_path / "long-trunk.yaml"
+    path.write_text(f"name: long-trunk\ndescription: as the refusal says\nextends: quadruped\nrules:\n"
+                    f"  - {{id: trunk-length, measure: trunk-length, exponent: {exponent}}}\n", encoding="utf-8")
+    accepted = _run(animal, registry, load_ruleset(str(path), registry), 2.0)
+    assert accepted.converged, accepted.messages
+    assert abs(next(rule for rule in accepted.rules if rule.id == "trunk-length").error) <= 0.02
     path = tmp_path / "long-chest.yaml"
     path.write_text(textwrap.dedent("""\
         name: long-chest

@@ -176,3 +176,19 @@ def test_build_an_archive_from_local_wheels(allorules_wheel, tmp_path):
         inner = opened.read(f"wheels/{allorules_wheel.name}")
         assert inner == allorules_wheel.read_bytes()
         assert "allorules/blender/operators.py" in wheel.namelist()
+
+
+def test_a_run_that_misses_its_targets_adds_nothing_and_says_what_it_missed(standing_z_up, tmp_path):
+    """Blender hears the line ``allorules scale`` and a batch job print (Run.missed), so a run
+    refused for its trunk tells the artist in Blender too how to settle it."""
+    vertices, faces, _ = standing_z_up
+    ruleset = tmp_path / "contradiction.yaml"
+    ruleset.write_text("name: contradiction\ndescription: two rules on the fore legs' length that cannot both hold\n"
+                       "extends: quadruped\nrules:\n"
+                       "  - {id: foreleg-length-again, region: forelimbs, measure: length, exponent: 1.0}\n"
+                       "solver: {max_evaluations: 40, limb_thickness: 'off', trunk_stretch: 'off'}\n", encoding="utf-8")
+    with pytest.raises(AllorulesError) as refused:
+        adapter.scale_arrays(vertices, faces, ruleset=str(ruleset), mass_ratio=1.1, modes=40)
+    message = str(refused.value)
+    assert message.startswith("ruleset 'contradiction' did not reach its targets at mass ratio 1.1: ")
+    assert "foreleg-length" in message and message.endswith("; nothing was added")

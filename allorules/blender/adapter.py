@@ -78,9 +78,7 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
                        progress=progress)
     report = run.report()
     if not run.converged:
-        raise ScalingError(f"the run did not reach its targets at mass ratio {mass_ratio:g}: "
-                           f"{run.result.messages[0] if run.result.messages else 'see the report'}; nothing was added",
-                           closest=run.result)
+        raise ScalingError(f"{run.missed()}; nothing was added", closest=run.result)
     new_vertices = run.output_vertices()      # placed by the pipeline: the feet where the input's were
     body = run.body
     frame_up = np.asarray(body.frame.up, dtype=float)

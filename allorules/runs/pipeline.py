@@ -327,6 +327,9 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     if opened.hold != "shape" or not any(outcome.held and outcome.hold == "shape" for outcome in result.open_regions):
         return result
     missed = result.messages[0] if result.messages else "a target missed"
+    settle = result.settle_trunk()
+    if settle:      # said now: the tries below can take several times the first run (12 min on the galloping horse)
+        log.warning("%s; first trying to keep it in proportion with more runs", settle)
     tried: list[str] = []          # what the runs not kept did, for the warnings of the one kept
     for variable, what, settings in _more_variables(solver, result.missed):
         solver = replace(solver, **settings)
@@ -483,7 +486,9 @@ class Run:
         what = f"ruleset {self.scaling.ruleset.name!r}" if hasattr(self.scaling, "ruleset") else "the global run"
         first = self.result.messages[0] if self.result.messages else "a target missed"
         ratio = getattr(self.scaling, "mass_ratio", None)
-        return f"{what} did not reach its targets" + (f" at mass ratio {ratio:g}" if ratio else "") + f": {first}"
+        settle = self.result.settle_trunk() if isinstance(self.result, BiologyScalingResult) else None
+        return (f"{what} did not reach its targets" + (f" at mass ratio {ratio:g}" if ratio else "") + f": {first}"
+                + (f"; {settle}" if settle else ""))
 
     def body_vertices(self) -> np.ndarray:
         """The scaled positions of the user's prepared body (carried from the working mesh)."""
