@@ -10,7 +10,6 @@ from allorules.measure.features import (
     SmallFeature,
     feature_shape_change,
     find_small_features,
-    similarity_fit,
 )
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.quality import (
@@ -24,6 +23,7 @@ from allorules.measure.quality import (
     self_intersections,
     surface_roughness,
 )
+from allorules.mesh.geometry import count_flipped_faces, similarity_fit
 
 
 def _turn(vertices, seed=3):
@@ -202,6 +202,37 @@ def test_the_report_counts_the_flipped_faces_of_the_mesh_written(generated_horse
     quality = run.quality()
     assert quality.written_flipped.count > 0 and set(quality.written_flipped.regions) >= {"head"}
     assert quality.written_flipped.regions["head"] > 0.5 * quality.written_flipped.count
+
+
+def test_a_face_the_run_folded_is_unfolded_in_the_mesh_written(generated_horse, tmp_path):
+    """A vertex of the output dragged past its neighbour folds the faces around it: the mesh written
+    (every front end's Run.body_vertices) has none, the report says how many were unfolded; raw
+    Eq. 4 is written as it is."""
+    import dataclasses
+
+    from allorules.runs import pipeline
+    from allorules.runs.results import RawGlobalResult
+
+    body = generated_horse.body()
+    run = pipeline.run(trimesh.Trimesh(body.vertices, body.faces, process=False), pipeline.GlobalScaling(1.5), modes=30)
+    assert run.working is None and run.quality().written_flipped is None      # nothing folded, one mesh
+    folded = run.result.body.vertices.copy()
+    tip = int(np.flatnonzero(run.body.region_mask("abdomen"))[0])
+    neighbour = next(int(v) for v in run.body.faces[np.any(run.body.faces == tip, axis=1)].ravel() if v != tip)
+    folded[tip] += 2.5 * (folded[neighbour] - folded[tip])
+    run = dataclasses.replace(run, result=dataclasses.replace(run.result, body=run.result.body.with_vertices(folded)),
+                              _quality=None, _carried=None)
+    quality = run.quality()
+    assert quality.flipped.count >= 2 and quality.written_flipped.count == 0
+    assert quality.unfolded == quality.flipped.count and 0 < quality.unfold_move < 0.05
+    assert f"(0 in the mesh written, {quality.unfolded} unfolded)" in quality.summary()
+    assert count_flipped_faces(body.vertices, run.output_vertices(), body.faces) == 0
+    assert run.report()["quality"]["unfolded_faces"] == quality.unfolded
+    untouched = np.ones(len(folded), dtype=bool)
+    untouched[np.flatnonzero(np.any(run.body_vertices() != folded, axis=1))] = False
+    assert untouched.sum() > 0.98 * len(folded)                                # a patch, not the body
+    raw = dataclasses.replace(run, result=RawGlobalResult(run.result.body, 0.0, 1.0, 1.0, 2), _quality=None, _carried=None)
+    assert np.array_equal(raw.body_vertices(), folded)
 
 
 def test_a_leg_swollen_along_part_of_its_length_is_measured(generated_horse):

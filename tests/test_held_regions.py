@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from allorules.measure.features import similarity_fit
+from allorules.mesh.geometry import similarity_fit
 from allorules.mesh.topology import unique_edges
 from allorules.solve import held_regions
 from allorules.solve.held_regions import hold_regions

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse as sparse
 from scipy.sparse.csgraph import connected_components
 
-from allorules.mesh.geometry import vertex_areas
+from allorules.mesh.geometry import similarity_fit, vertex_areas
 from allorules.mesh.topology import vertex_graph
 from allorules.segment.body_plan import average_geodesic_distance, persistent_maxima
 
@@ -47,7 +47,6 @@ __all__ = [
     "FeatureShapeChange",
     "find_small_features",
     "feature_shape_change",
-    "similarity_fit",
 ]
 
 
@@ -157,27 +156,6 @@ def find_small_features(
 # Shape change
 
 
-def similarity_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
-                   ) -> tuple[float, np.ndarray, np.ndarray]:
-    """The similarity (scale σ, rotation R, translation t) that best maps ``source`` onto
-    ``target`` in weighted least squares, min Σ w_i ‖σ R p_i + t − q_i‖² (Umeyama 1991).
-
-    Returns (σ, R, t); R is a proper rotation (det +1)."""
-    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
-    weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
-    weights = weights / weights.sum()
-    mean_source, mean_target = weights @ source, weights @ target
-    p, q = source - mean_source, target - mean_target
-    covariance = (q * weights[:, None]).T @ p              # Σ w q pᵀ
-    u, singular, vt = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(u @ vt)) or 1.0
-    correction = np.diag([1.0, 1.0, sign])
-    rotation = u @ correction @ vt
-    variance = float(weights @ np.einsum("ij,ij->i", p, p))
-    scale = float(np.sum(singular * np.diag(correction)) / variance) if variance > 0 else 1.0
-    return scale, rotation, mean_target - scale * rotation @ mean_source
-
-
 @dataclass(frozen=True)
 class FeatureShapeChange:
     """How much a small feature's shape changed, the best similarity transform removed.
@@ -209,7 +187,7 @@ def feature_shape_change(before: np.ndarray, after: np.ndarray, feature: SmallFe
     """Shape difference of ``feature`` between two positions of the same mesh (METHOD §10).
 
     The before-shape is mapped onto the after-shape by the best similarity (scale, rotation,
-    translation; :func:`similarity_fit`, weighted by ``weights``, e.g. vertex areas); what is
+    translation; :func:`allorules.mesh.geometry.similarity_fit`, weighted by ``weights``, e.g. vertex areas); what is
     left, RMS over the feature's vertices, is divided by the feature's size after (its RMS
     distance from its centroid before, times the fitted scale)."""
     members = feature.vertices

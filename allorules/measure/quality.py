@@ -311,6 +311,10 @@ class QualityReport:
     # The faces turned inside out in the mesh written: the user's own faces, when the run worked on a
     # working mesh (everything above is measured there); None when the two are one mesh.
     written_flipped: FlippedFaces | None = None
+    # The faces the run folded that were smoothed back before writing (allorules.mesh.unfold), and the
+    # largest distance a vertex moved for it, over the output's largest extent.
+    unfolded: int = 0
+    unfold_move: float = 0.0
 
     @property
     def worst_feature_change(self) -> float:
@@ -320,7 +324,8 @@ class QualityReport:
         """The terminal's line: what an artist would look for, in numbers."""
         parts = [f"{self.flipped.count} flipped faces"]
         if self.written_flipped is not None:
-            parts[0] += f" on the working mesh ({self.written_flipped.count} in the mesh written)"
+            unfolded = f", {self.unfolded} unfolded" if self.unfolded else ""
+            parts[0] += f" as solved ({self.written_flipped.count} in the mesh written{unfolded})"
         if self.intersections is not None:
             new = self.intersections.new_pairs
             parts.append(f"{self.intersections.pairs if new is None else new} {'new ' if new is not None else ''}"
@@ -339,6 +344,8 @@ class QualityReport:
         return {
             "flipped_faces": self.flipped.as_dict(),
             "written_flipped_faces": None if self.written_flipped is None else self.written_flipped.as_dict(),
+            "unfolded_faces": int(self.unfolded),
+            "unfold_largest_move": float(self.unfold_move),
             "self_intersections": None if self.intersections is None else self.intersections.as_dict(),
             "roughness": self.roughness.as_dict(),
             "small_features": [change.as_dict() for change in self.features],

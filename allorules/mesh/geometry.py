@@ -1,5 +1,6 @@
-"""Geometry of triangle meshes as plain numpy: areas, normals, enclosed volume, flipped faces,
-plane sections; and the smoothstep every blend along a surface uses.
+"""Geometry of triangle meshes as plain numpy: areas, normals, enclosed volume, flipped faces, the
+best similarity between two point sets (Umeyama), plane sections; and the smoothstep every blend
+along a surface uses.
 
 One home for each of these operations; every stage (repair, the Laplacian, measurement, export,
 the generated quadruped) calls them from here.
@@ -76,12 +77,34 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def flipped_face_mask(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces whose normal turned by more than 90° (n_before · n_after ≤ 0 on a non-degenerate face)."""
     normal_before, normal_after = face_normals(before, faces), face_normals(after, faces)
-    return np.einsum("ij,ij->i", normal_before, normal_after) <= 0
+    degenerate = ~np.any(normal_before != 0, axis=1)            # no normal to turn
+    return (np.einsum("ij,ij->i", normal_before, normal_after) <= 0) & ~degenerate
 
 
 def count_flipped_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
     """How many faces :func:`flipped_face_mask` finds."""
     return int(np.sum(flipped_face_mask(before, after, faces)))
+
+
+def similarity_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+                   ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The similarity (scale σ, rotation R, translation t) that best maps ``source`` onto
+    ``target`` in weighted least squares, min Σ w_i ‖σ R p_i + t − q_i‖² (Umeyama 1991).
+
+    Returns (σ, R, t); R is a proper rotation (det +1)."""
+    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
+    weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
+    weights = weights / weights.sum()
+    mean_source, mean_target = weights @ source, weights @ target
+    p, q = source - mean_source, target - mean_target
+    covariance = (q * weights[:, None]).T @ p              # Σ w q pᵀ
+    u, singular, vt = np.linalg.svd(covariance)
+    sign = np.sign(np.linalg.det(u @ vt)) or 1.0
+    correction = np.diag([1.0, 1.0, sign])
+    rotation = u @ correction @ vt
+    variance = float(weights @ np.einsum("ij,ij->i", p, p))
+    scale = float(np.sum(singular * np.diag(correction)) / variance) if variance > 0 else 1.0
+    return scale, rotation, mean_target - scale * rotation @ mean_source
 
 
 def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -38,6 +38,7 @@ from allorules.measure.stress import SectionChoice, peak_stress
 from allorules.mesh.geometry import count_flipped_faces, vertex_areas
 from allorules.mesh.repair import PreparedMesh, prepare_mesh
 from allorules.mesh.transfer import Binding, bind, carry_deformation, carry_labels
+from allorules.mesh.unfold import Unfolding, unfold_faces
 from allorules.mesh.working import (
     WorkingMesh,
     check_working_vertices,
@@ -475,7 +476,7 @@ class Run:
     placement: str = "ground"            # how the output was placed (see :func:`place`)
     working: Working | None = None       # None: the prepared body itself
     _quality: QualityReport | None = field(default=None, repr=False)
-    _carried: tuple[Body, np.ndarray] | None = field(default=None, repr=False)
+    _carried: tuple[Body, Unfolding] | None = field(default=None, repr=False)
 
     @property
     def converged(self) -> bool:
@@ -491,13 +492,23 @@ class Run:
                 + (f"; {settle}" if settle else ""))
 
     def body_vertices(self) -> np.ndarray:
-        """The scaled positions of the user's prepared body (carried from the working mesh)."""
-        if self.working is None:
-            return self.result.body.vertices
-        # carried once per result body (the report's quality and the file written both need it)
+        """The scaled positions of the user's prepared body (carried from the working mesh), every
+        face the run folded smoothed back (:meth:`unfolding`)."""
+        return self.unfolding().vertices
+
+    def unfolding(self) -> Unfolding:
+        """The user's body as the run left it, with the faces it turned inside out smoothed back
+        into the surface (:func:`allorules.mesh.unfold.unfold_faces`); not for raw Eq. 4, which
+        writes what the user's α and s give. Once per result body (the report's quality and the
+        file written both need it)."""
         if self._carried is None or self._carried[0] is not self.result.body:
-            self._carried = (self.result.body, self.working.to_user(self.body.vertices, self.result.body.vertices,
-                                                                    self.prepared.vertices))
+            if self.working is None:
+                before, faces, after = self.body.vertices, self.body.faces, self.result.body.vertices
+            else:
+                before, faces = self.prepared.vertices, self.prepared.faces
+                after = self.working.to_user(self.body.vertices, self.result.body.vertices, self.prepared.vertices)
+            raw = isinstance(self.result, RawGlobalResult)
+            self._carried = (self.result.body, Unfolding(after, 0, 0, 0, 0.0) if raw else unfold_faces(before, after, faces))
         return self._carried[1]
 
     def output_vertices(self) -> np.ndarray:
@@ -529,10 +540,15 @@ class Run:
         if self._quality is None:
             self._quality = quality_report(self.body, self.result.body.vertices, rules=getattr(self.result, "rules", None),
                                            tolerance=EXPONENT_TOLERANCE)
-            if self.working is not None and self.working.binding is not None:
-                # measured on the working mesh; the faces written are the user's, counted there too
-                user = self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces))
+            unfolding = self.unfolding()
+            carried = self.working is not None and self.working.binding is not None
+            if carried or unfolding.folded:
+                # measured on the working mesh (or before unfolding); the faces written counted too
+                user = self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces)) \
+                    if carried else self.body
                 self._quality.written_flipped = flipped_faces(user, self.body_vertices())
+                self._quality.unfolded = unfolding.unfolded
+                self._quality.unfold_move = unfolding.largest_move / max(float(np.ptp(unfolding.vertices, axis=0).max()), 1e-300)
         return self._quality
 
 

@@ -44,8 +44,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from allorules.body import Body
-from allorules.measure.features import similarity_fit
-from allorules.mesh.geometry import smoothstep, vertex_areas
+from allorules.mesh.geometry import similarity_fit, smoothstep, vertex_areas
 from allorules.mesh.topology import (
     vertex_adjacency,
     vertex_components,
