@@ -185,15 +185,16 @@ class BiologyScalingResult(ScalingResult):
     def settle_trunk(self) -> str | None:
         """How to settle a run whose one miss is the trunk's length (every rule, the mass and every
         constraint met): the ruleset asks the trunk for more mass (or less) than its heart girth and
-        an isometric trunk allow, so accepting it means saying so with a rule on ``trunk-length``.
-        The galloping real horse at ×2 misses so (0.568) after every try; ruled at 0.5 it converges
-        (docs/rulesets.md, "When the trunk is the one miss"). None for any other run."""
+        an isometric trunk allow, so accepting it means saying so with a rule on ``trunk-length``,
+        after looking: the galloping real horse at ×2 misses so (0.568) after every try, and ruled at
+        0.5 it converges with its rump shrunk and its back hunched (docs/rulesets.md, "When the
+        trunk is the one miss"). None for any other run."""
         if self.missed != ("trunk",) or self.trunk_length_exponent is None:
             return None
         exponent = round(self.trunk_length_exponent, 2)
-        return (f"every rule and the mass were met, only the trunk's length strayed: to accept a trunk "
-                f"{'that long' if (exponent - 1 / 3) * math.log(self.target_mass_ratio) > 0 else 'that short'}, "
-                f"give it a rule (a ruleset with extends: {self.ruleset} and the rule {{id: trunk-length, "
+        return (f"every rule and the mass were met, only the trunk's length strayed: if the animal looks right "
+                f"to you {'that long' if (exponent - 1 / 3) * math.log(self.target_mass_ratio) > 0 else 'that short'}, "
+                f"give its trunk a rule (a ruleset with extends: {self.ruleset} and the rule {{id: trunk-length, "
                 f"measure: trunk-length, exponent: {exponent:g}}}, docs/rulesets.md)")
 
     def details(self) -> dict:
