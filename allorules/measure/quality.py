@@ -309,7 +309,8 @@ class QualityReport:
     legs: list[LegStance] = field(default_factory=list)
     rules: list[RuleCheck] = field(default_factory=list)
     # The faces turned inside out in the mesh written: the user's own faces, when the run worked on a
-    # working mesh (everything above is measured there); None when the two are one mesh.
+    # working mesh (everything above is measured there) or faces were unfolded before writing; None
+    # when the mesh written is the one measured.
     written_flipped: FlippedFaces | None = None
     # The faces the run folded that were smoothed back before writing (allorules.mesh.unfold), and the
     # largest distance a vertex moved for it, over the output's largest extent.
