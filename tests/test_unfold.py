@@ -79,9 +79,10 @@ def test_nothing_folded_is_returned_as_it_is():
     assert unfolding.vertices is after and (unfolding.folded, unfolding.left, unfolding.moved) == (0, 0, 0)
 
 
-def test_a_degenerate_input_face_is_not_folded():
-    """A face of zero area has no normal to turn: it is never counted folded (nor made to unfold)."""
-    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], dtype=float)
-    faces = np.array([[0, 1, 2], [0, 1, 3]])                          # the second lies on a line
+def test_a_degenerate_or_needle_input_face_is_not_folded():
+    """A face of zero area, or a needle whose height is under 1 % of its length, has no normal worth
+    turning: it is never counted folded (nor made to unfold); a thin but real face is."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [0.5, 0.005, 0], [0.5, 0.02, 0]], dtype=float)
+    faces = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [0, 1, 5]])    # a triangle, a line, a needle, a thin one
     moved = vertices * [1, -1, 1]
-    assert flipped_face_mask(vertices, moved, faces).tolist() == [True, False]
+    assert flipped_face_mask(vertices, moved, faces).tolist() == [True, False, False, True]
