@@ -85,11 +85,14 @@ SLIVER_FLATNESS = 0.01
 def flipped_face_mask(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces whose normal turned by more than 90° (n_before · n_after ≤ 0), a face of zero area or
     a needle (``SLIVER_FLATNESS``) in ``before`` excepted: it has no normal to turn."""
-    normal_before, normal_after = face_normals(before, faces), face_normals(after, faces)
-    corners = np.asarray(before, dtype=float)[faces]
-    longest = np.max([np.sum((corners[:, k] - corners[:, k - 1]) ** 2, axis=1) for k in range(3)], axis=0)
-    needle = np.linalg.norm(normal_before, axis=1) <= SLIVER_FLATNESS * longest
-    return (np.einsum("ij,ij->i", normal_before, normal_after) <= 0) & ~needle
+    normal_before = face_normals(before, faces)
+    turned = np.einsum("ij,ij->i", normal_before, face_normals(after, faces)) <= 0
+    candidates = np.flatnonzero(turned)             # few: the needle test only for them
+    corners = np.asarray(before, dtype=float)[faces[candidates]]
+    longest = np.max([np.sum((corners[:, k] - corners[:, k - 1]) ** 2, axis=1) for k in range(3)], axis=0,
+                     initial=0.0)
+    turned[candidates[np.linalg.norm(normal_before[candidates], axis=1) <= SLIVER_FLATNESS * longest]] = False
+    return turned
 
 
 def count_flipped_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:

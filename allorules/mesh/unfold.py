@@ -24,7 +24,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from allorules.mesh.geometry import flipped_face_mask, similarity_fit
-from allorules.mesh.topology import vertex_adjacency
+from allorules.mesh.topology import unique_edges
 
 MAX_RINGS = 6            # rings of neighbours the patch may grow by around the folded faces
 # keeps a part wholly inside the patch (a detached eye) solvable: it follows the ring's similarity
@@ -58,29 +58,54 @@ def unfold_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray, *, ma
     if folded == 0:
         return Unfolding(after, 0, 0, 0, 0.0)
     count = len(before)
-    adjacency = vertex_adjacency(faces, count)
-    laplacian = (sparse.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
+    # face × vertex incidence: the rings grow through it, and only the faces about the patch are
+    # looked at again (a 2.6M-vertex sphere with one fold: no whole-mesh adjacency or Laplacian)
+    incidence = sparse.csr_matrix((np.ones(faces.size), (np.repeat(np.arange(len(faces)), 3), faces.ravel())),
+                                  shape=(len(faces), count))
     patch = np.zeros(count, dtype=bool)
     patch[faces[flipped].ravel()] = True
-    best = (folded, after)
+    best: tuple[int, np.ndarray, np.ndarray] = (folded, np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
     for _ in range(max_rings):
-        patch |= adjacency @ patch.astype(float) > 0
-        inner, outer = np.flatnonzero(patch), np.flatnonzero(~patch)
-        ring = np.flatnonzero(~patch & (adjacency @ patch.astype(float) > 0))
+        patch[faces[np.flatnonzero(incidence @ patch.astype(float))].ravel()] = True     # one ring more
+        local = faces[np.flatnonzero(incidence @ patch.astype(float))]   # every face about the patch
+        vertices = np.unique(local)
+        inner, ring = vertices[patch[vertices]], vertices[~patch[vertices]]
         if len(ring) < 3:                                    # the patch took a whole part: nothing to rebuild it from
             break
         scale, rotation, shift = similarity_fit(before[ring], after[ring])
-        fitted = scale * before @ rotation.T + shift
-        left_over = after - fitted
-        system = laplacian[inner][:, inner] + _ANCHOR * sparse.identity(len(inner))
-        right = -(laplacian[inner][:, outer] @ left_over[outer])
-        candidate = after.copy()                             # every vertex outside exactly as it was
-        candidate[inner] = fitted[inner] + np.asarray(spsolve(system.tocsc(), right)).reshape(-1, 3)
-        left = int(flipped_face_mask(before, candidate, faces).sum())
+        fitted_inner = scale * before[inner] @ rotation.T + shift
+        left_over_ring = after[ring] - (scale * before[ring] @ rotation.T + shift)
+        index = np.full(count, -1, dtype=np.int64)
+        index[inner] = np.arange(len(inner))
+        index[ring] = len(inner) + np.arange(len(ring))
+        laplacian = _uniform_laplacian(index[local], len(vertices))
+        system = laplacian[: len(inner), : len(inner)] + _ANCHOR * sparse.identity(len(inner))
+        right = -(laplacian[: len(inner), len(inner):] @ left_over_ring)
+        positions = fitted_inner + np.asarray(spsolve(system.tocsc(), right)).reshape(-1, 3)
+        # only the faces about the patch moved; the others keep their (unfolded) turn
+        left = _folded(before[local], np.vstack([positions, after[ring]])[index[local]])
         if left < best[0]:
-            best = (left, candidate)
+            best = (left, inner, positions)
         if left == 0:
             break
-    left, vertices = best
-    moves = np.linalg.norm(vertices - after, axis=1)
-    return Unfolding(vertices, folded, left, int(np.count_nonzero(moves)), float(moves.max()))
+    left, inner, positions = best
+    vertices = after.copy()
+    vertices[inner] = positions
+    moves = np.linalg.norm(positions - after[inner], axis=1)
+    return Unfolding(vertices, folded, left, int(np.count_nonzero(moves)), float(moves.max(initial=0.0)))
+
+
+def _uniform_laplacian(faces: np.ndarray, count: int) -> sparse.csr_matrix:
+    """Degree minus adjacency of the vertices joined by the edges of ``faces`` (local indices)."""
+    edges = unique_edges(faces)
+    ones = np.ones(2 * len(edges))
+    adjacency = sparse.csr_matrix((ones, (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])),
+                                  shape=(count, count))
+    return (sparse.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
+
+
+def _folded(corners_before: np.ndarray, corners_after: np.ndarray) -> int:
+    """How many of the faces given by their corners (k × 3 × 3) are folded (flipped_face_mask's test)."""
+    triangles = np.arange(3 * len(corners_before)).reshape(-1, 3)
+    return int(flipped_face_mask(corners_before.reshape(-1, 3), corners_after.reshape(-1, 3), triangles).sum())
+
