@@ -24,7 +24,7 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from allorules.mesh.geometry import flipped_face_mask, similarity_fit
-from allorules.mesh.topology import unique_edges
+from allorules.mesh.topology import vertex_adjacency
 
 MAX_RINGS = 6            # rings of neighbours the patch may grow by around the folded faces
 # keeps a part wholly inside the patch (a detached eye) solvable: it follows the ring's similarity
@@ -97,10 +97,7 @@ def unfold_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray, *, ma
 
 def _uniform_laplacian(faces: np.ndarray, count: int) -> sparse.csr_matrix:
     """Degree minus adjacency of the vertices joined by the edges of ``faces`` (local indices)."""
-    edges = unique_edges(faces)
-    ones = np.ones(2 * len(edges))
-    adjacency = sparse.csr_matrix((ones, (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])),
-                                  shape=(count, count))
+    adjacency = vertex_adjacency(faces, count)
     return (sparse.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
 
 
