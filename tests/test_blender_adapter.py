@@ -82,6 +82,10 @@ def test_run_summary_marks_rules_within_the_tolerance_as_met():
     assert not summary.all_met and summary.warnings == ("a leg bows",)
     assert "1/2 rules met" in summary.line() and "1 warning" in summary.line()
     assert type(summary).from_dict(summary.as_dict()) == summary
+    # faces the run folded were smoothed back in the object added: the panel says so
+    report["quality"] = {"unfolded_faces": 3, "unfold_largest_move": 0.012}
+    summary = run_summary(report, object_name="Horse_x2", source_name="Horse")
+    assert summary.warnings[-1].startswith("3 folded face(s) were smoothed back") and "1.2%" in summary.warnings[-1]
 
 
 def test_a_background_run_stops_when_cancelled(standing_z_up):

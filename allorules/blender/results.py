@@ -67,10 +67,15 @@ def run_summary(report: dict[str, Any], *, object_name: str, source_name: str) -
                           abs(float(rule["achieved_exponent"]) - float(rule["exponent"])) <= tolerance + 1e-12)
                   for rule in report.get("rules", ()))
     stress = report.get("stress_ratio")
+    quality = report.get("quality") or {}
+    unfolded = int(quality.get("unfolded_faces") or 0)
+    # the run's own warning about folded faces is about the mesh solved; the object added had them smoothed back
+    smoothed = (f"{unfolded} folded face(s) were smoothed back before the object was added (the farthest vertex "
+                f"moved {100 * float(quality.get('unfold_largest_move') or 0):.1f}% of the body's size)",) if unfolded else ()
     return RunSummary(
         object=object_name, source=source_name, kind=str(report.get("mode", "")), ruleset=str(report.get("ruleset", "")),
         target_mass_ratio=float(report["target_mass_ratio"]), mass_ratio=float(report["mass_ratio"]),
         stress_ratio=None if stress is None else float(stress), rules=rules,
-        warnings=tuple(report.get("warnings", ())) + tuple(report.get("messages", ())),
+        warnings=tuple(report.get("warnings", ())) + tuple(report.get("messages", ())) + smoothed,
         repairs=tuple(report.get("repairs", ())),
     )
