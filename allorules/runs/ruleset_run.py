@@ -446,7 +446,8 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     if flipped.count:       # not a verdict (a sliver at two legs that touch), but never unsaid
         where = ", ".join(f"{count} in the {region}" for region, count in flipped.regions.items())
         result.warnings.append(f"{flipped.count} face{'s' * (flipped.count > 1)} turned inside out ({where}): "
-                               "Eq. 9 folded the surface there; look at the output there before using it")
+                               "Eq. 9 folded the surface there; the mesh written has them smoothed back "
+                               "(docs/outputs.md, folded faces) and the quality line says if any are left")
         log.warning("%s", result.warnings[-1])
     _report_posture(result, initial, final)
     mass_term = energy_terms(ruleset)[0]
