@@ -2,7 +2,7 @@
 
 Owns :func:`unfold_faces` and its outcome, :class:`Unfolding`. Eq. 9 can fold a few triangles
 where the power law of one region meets another's (the real horse galloping at ×2: one face in
-the fore limbs, a spike 0.7 % of the body's size): a face whose normal turned by more than 90°
+the fore limbs, a spike 0.5 % of the body's size): a face whose normal turned by more than 90°
 (:func:`allorules.mesh.geometry.flipped_face_mask`) renders as a dark speck and breaks shading
 and subdivision in Blender. The written mesh should have none.
 
@@ -68,8 +68,8 @@ def unfold_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray, *, ma
     for _ in range(max_rings):
         patch[faces[np.flatnonzero(incidence @ patch.astype(float))].ravel()] = True     # one ring more
         local = faces[np.flatnonzero(incidence @ patch.astype(float))]   # every face about the patch
-        vertices = np.unique(local)
-        inner, ring = vertices[patch[vertices]], vertices[~patch[vertices]]
+        about = np.unique(local)                             # the patch and the ring just outside it
+        inner, ring = about[patch[about]], about[~patch[about]]
         if len(ring) < 3:                                    # the patch took a whole part: nothing to rebuild it from
             break
         scale, rotation, shift = similarity_fit(before[ring], after[ring])
@@ -78,7 +78,7 @@ def unfold_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray, *, ma
         index = np.full(count, -1, dtype=np.int64)
         index[inner] = np.arange(len(inner))
         index[ring] = len(inner) + np.arange(len(ring))
-        laplacian = _uniform_laplacian(index[local], len(vertices))
+        laplacian = _uniform_laplacian(index[local], len(about))
         system = laplacian[: len(inner), : len(inner)] + _ANCHOR * sparse.identity(len(inner))
         right = -(laplacian[: len(inner), len(inner):] @ left_over_ring)
         positions = fitted_inner + np.asarray(spsolve(system.tocsc(), right)).reshape(-1, 3)
