@@ -225,7 +225,7 @@ def test_a_face_the_run_folded_is_unfolded_in_the_mesh_written(generated_horse, 
     quality = run.quality()
     assert quality.flipped.count >= 2 and quality.written_flipped.count == 0
     assert quality.unfolded == quality.flipped.count and 0 < quality.unfold_move < 0.05
-    assert f"(0 in the mesh written, {quality.unfolded} unfolded)" in quality.summary()
+    assert f"flipped faces as solved; in the mesh written {quality.unfolded} unfolded, 0 left" in quality.summary()
     assert count_flipped_faces(body.vertices, run.output_vertices(), body.faces) == 0
     assert run.report()["quality"]["unfolded_faces"] == quality.unfolded
     untouched = np.ones(len(folded), dtype=bool)

@@ -325,8 +325,9 @@ class QualityReport:
         """The terminal's line: what an artist would look for, in numbers."""
         parts = [f"{self.flipped.count} flipped faces"]
         if self.written_flipped is not None:
-            unfolded = f", {self.unfolded} unfolded" if self.unfolded else ""
-            parts[0] += f" as solved ({self.written_flipped.count} in the mesh written{unfolded})"
+            left = self.written_flipped.count
+            parts[0] += (f" as solved; in the mesh written {self.unfolded} unfolded, {left} left" if self.unfolded
+                         else f" as solved ({left} in the mesh written)")
         if self.intersections is not None:
             new = self.intersections.new_pairs
             parts.append(f"{self.intersections.pairs if new is None else new} {'new ' if new is not None else ''}"
