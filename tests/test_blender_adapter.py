@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import zipfile
 from pathlib import Path
@@ -12,6 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tomllib
+
+try:
+    import fcntl
+except ImportError:                 # not on Windows: builds there are not locked
+    fcntl = None
 
 from allorules.blender import adapter
 from allorules.blender.build import BuildError, build_extension
@@ -111,10 +117,15 @@ def test_a_background_run_stops_when_cancelled(standing_z_up):
 
 @pytest.fixture(scope="session")
 def allorules_wheel(tmp_path_factory) -> Path:
-    """The allorules wheel, built offline from this checkout."""
+    """The allorules wheel, built offline from this checkout, one build at a time: setuptools builds
+    in the checkout's build/ folder, and two test workers building at once broke each other's
+    (found with -n 2: "No such file or directory" copying build/lib)."""
     folder = tmp_path_factory.mktemp("allorules-wheel")
-    completed = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
-                                "--no-index", "-q", "-w", str(folder)], capture_output=True, text=True)
+    with open(Path(tempfile.gettempdir()) / "allorules-wheel-build.lock", "w") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)          # released when the file closes
+        completed = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                                    "--no-index", "-q", "-w", str(folder)], capture_output=True, text=True)
     assert completed.returncode == 0, completed.stderr
     (wheel,) = folder.glob("allorules-*.whl")
     return wheel
