@@ -65,9 +65,11 @@ def unfold_faces(before: np.ndarray, after: np.ndarray, faces: np.ndarray, *, ma
     patch = np.zeros(count, dtype=bool)
     patch[faces[flipped].ravel()] = True
     best: tuple[int, np.ndarray, np.ndarray] = (folded, np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+    touching = np.flatnonzero(incidence @ patch.astype(float))      # the faces with a vertex in the patch
     for _ in range(max_rings):
-        patch[faces[np.flatnonzero(incidence @ patch.astype(float))].ravel()] = True     # one ring more
-        local = faces[np.flatnonzero(incidence @ patch.astype(float))]   # every face about the patch
+        patch[faces[touching].ravel()] = True                          # one ring more
+        touching = np.flatnonzero(incidence @ patch.astype(float))
+        local = faces[touching]                                        # every face about the patch
         about = np.unique(local)                             # the patch and the ring just outside it
         inner, ring = about[patch[about]], about[~patch[about]]
         if len(ring) < 3:                                    # the patch took a whole part: nothing to rebuild it from

@@ -58,6 +58,7 @@ from allorules.runs.results import (
     LocalResult,
     RawGlobalResult,
     ScalingResult,
+    trunk_longer,
 )
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.segment.labels_io import read_labels, read_seg
@@ -401,7 +402,7 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
     result.warnings.append(f"the trunk's length reached exponent {trunk:.3f}, beyond ±{TRUNK_LENGTH_RETRY} of "
                            f"isometric's 0.333 (within the tolerance ±{TRUNK_LENGTH_TOLERANCE}); held by a soft "
                            f"term the run did no better ({why}): the animal's trunk may look "
-                           + ("longer" if (trunk - 1.0 / 3.0) * np.log(result.target_mass_ratio) > 0 else "shorter"))
+                           + ("longer" if trunk_longer(trunk, result.target_mass_ratio) else "shorter"))
     log.warning("%s", result.warnings[-1])
     return result
 

@@ -92,6 +92,13 @@ TRUNK_LENGTH_TOLERANCE = 0.1
 TRUNK_LENGTH_RETRY = 0.05
 
 
+def trunk_longer(exponent: float, mass_ratio: float) -> bool:
+    """Whether a trunk grown at length ``exponent`` over mass ratio R is longer than isometric
+    scaling makes it: (e − 1/3)·log R > 0, above 1/3 when growing, below it when shrinking (the
+    bull 386 at ×0.5, 0.498, came out short)."""
+    return (exponent - 1.0 / 3.0) * math.log(mass_ratio) > 0
+
+
 # The kinds of target a ruleset run can miss (BiologyScalingResult.missed): a rule's exponent, the
 # mass ratio, a constraint's residual, the trunk's length beyond TRUNK_LENGTH_TOLERANCE, and a
 # distorted output (allorules/measure/quality.py). What is tried next depends on it (runs/pipeline.py).
@@ -193,7 +200,7 @@ class BiologyScalingResult(ScalingResult):
             return None
         exponent = round(self.trunk_length_exponent, 2)
         return (f"every rule and the mass were met, only the trunk's length strayed: if the animal looks right "
-                f"to you {'that long' if (exponent - 1 / 3) * math.log(self.target_mass_ratio) > 0 else 'that short'}, "
+                f"to you {'that long' if trunk_longer(exponent, self.target_mass_ratio) else 'that short'}, "
                 f"give its trunk a rule (a ruleset with extends: {self.ruleset} and the rule {{id: trunk-length, "
                 f"measure: trunk-length, exponent: {exponent:g}}}, docs/rulesets.md)")
 

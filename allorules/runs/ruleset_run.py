@@ -60,6 +60,7 @@ from allorules.runs.results import (
     BiologyScalingResult,
     RuleOutcome,
     RulesetStep,
+    trunk_longer,
 )
 from allorules.runs.steps import check_mass_ratio, step_basis, step_ratios
 from allorules.solve.energy import (
@@ -359,9 +360,7 @@ def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body
     if stretched:
         return [f"the trunk's length reached exponent {exponent:.3f} with the trunk's stretch, beyond "
                 f"{1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE} (solver.trunk_stretch)"]
-    # longer than isometric scaling would make it where (e − 1/3)·log R > 0: above 1/3 when growing,
-    # below 1/3 when shrinking (the bull 386 at ×0.5, 0.498, came out short)
-    longer = (exponent - 1.0 / 3.0) * math.log(result.target_mass_ratio) > 0
+    longer = trunk_longer(exponent, result.target_mass_ratio)
     return [f"the trunk's length reached exponent {exponent:.3f}, beyond {1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE}, "
             "and no rule asks for it: the animal came out " + ("stretched" if longer else "shortened")]
 
