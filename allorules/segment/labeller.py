@@ -29,6 +29,7 @@ so the labels do not change under rotation, mirroring or uniform scaling.
 from __future__ import annotations
 
 import itertools
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sparse
@@ -890,13 +891,28 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
         found.append((bend, neck_direction, neck))
     if not found:
         return None, None
-    necks = [candidate for candidate in found if candidate[2][3] > 0 and candidate[2][2] >= MIN_NECK_LENGTH]
+    # Where no bend's neck narrows over MIN_NARROWING, a narrowing below it is noise and does not
+    # pick the bend either: the wolf grazing, its head hanging, bends 90° at the back of its head
+    # into a thick neck that only widens (0.00), and a bend halfway down its face "narrowed" 0.04
+    # into the back of its head, so its head was cut in two and its neck labelled chest.
+    narrows = any(neck.narrowing >= MIN_NARROWING for _, _, neck in found)
+    necks = [candidate for candidate in found
+             if (candidate[2].narrowing > 0 or not narrows) and candidate[2].length >= MIN_NECK_LENGTH]
     chosen = necks[0] if necks else found[0]
     as_sharp = [candidate for candidate in found if turn[candidate[0]] >= BEND_TIE * turn[chosen[0]]]
-    narrowing = [candidate for candidate in as_sharp if candidate[2][3] >= MIN_NARROWING]
+    narrowing = [candidate for candidate in as_sharp if candidate[2].narrowing >= MIN_NARROWING]
     if narrowing:
-        chosen = max(narrowing, key=lambda candidate: candidate[2][3])
-    bend, neck_direction, (base_point, base_direction, _, _, throat) = chosen
+        chosen = max(narrowing, key=lambda candidate: candidate[2].narrowing)
+        # Two bends that narrow into the same section (within its radius) lead into one neck: the
+        # one nearer the tip counts the stretch of head between them as narrowing too, so the
+        # farther is the head's end. The lion lying, its mane as thick as its head: a bend at its
+        # muzzle narrowed over 1.51 radii, the one at the back of its head over 1.10 into the same
+        # section; the muzzle's won and 0.6 of its head was labelled neck (walking, the back's).
+        chosen = max((candidate for candidate in narrowing
+                      if np.linalg.norm(candidate[2].narrowest - chosen[2].narrowest) <= chosen[2].narrowest_radius),
+                     key=lambda candidate: candidate[0])
+    bend, neck_direction, neck = chosen
+    base_point, base_direction, throat = neck.base, neck.base_direction, neck.throat
     # The head cut: at the throat (the neck's narrowest section in its head half, else the bend;
     # see _follow_neck), across the neck's axis as the tube-following found it (the chord from
     # the bend to the base), not the first chord after the bend, which still leans into the head.
@@ -910,10 +926,20 @@ THROAT_SHARE = (0.3, 0.7)   # the narrowest section this share of the neck from 
 SHOULDER_SHARE = 0.25   # a neck base with more of the forelimbs' junction than this on its head side reaches over the shoulders
 
 
-def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoulders=None):
-    """Follow a tube from ``start`` along ``direction``: (base point, base direction, length,
-    narrowing) of the neck it finds, or None; length and narrowing (the distance to the
-    narrowest section) in radii of the narrowest section.
+class _Neck(NamedTuple):
+    """A neck followed from a bend (:func:`_follow_neck`); lengths in radii of its narrowest section."""
+
+    base: np.ndarray             # the centre of the section where it enters the chest
+    base_direction: np.ndarray   # the tube's direction there (away from the head)
+    length: float                # from the bend to the base
+    narrowing: float             # from the bend to the narrowest section
+    throat: np.ndarray           # where the head is cut off
+    narrowest: np.ndarray        # the centre of the narrowest section
+    narrowest_radius: float
+
+
+def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoulders=None) -> _Neck | None:
+    """Follow a tube from ``start`` along ``direction``: the neck it finds (:class:`_Neck`), or None.
 
     Each step cuts the surface with the plane through the current axis point perpendicular to
     the current direction, takes the loop around the point (its equivalent radius r and its
@@ -973,8 +999,8 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
     share = travelled[narrowest] / max(travelled[base], np.finfo(float).tiny)
     weight = float(smoothstep((THROAT_SHARE[1] - share) / (THROAT_SHARE[1] - THROAT_SHARE[0])))
     throat = weight * centres[narrowest] + (1.0 - weight) * np.asarray(start, dtype=float)
-    return (centres[base], directions[base], travelled[base] / radii[narrowest],
-            travelled[narrowest] / radii[narrowest], throat)
+    return _Neck(centres[base], directions[base], travelled[base] / radii[narrowest],
+                 travelled[narrowest] / radii[narrowest], throat, centres[narrowest], float(radii[narrowest]))
 
 
 def _neck_knee(radii: np.ndarray, travelled: np.ndarray) -> tuple[int, int] | None:
