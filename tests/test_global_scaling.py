@@ -326,7 +326,8 @@ def test_cli_raw_alpha_writes_mesh_and_report(bone_file, tmp_path, capsys):
     (["--global"], "exactly one"),
     (["--global", "--mass-ratio", "2", "--alpha", "0.1"], "exactly one"),
     (["--global", "--mass-ratio", "2", "--scale", "2"], "--scale goes with --alpha"),
-    (["--mass-ratio", "2"], "choose the kind"),
+    ([], "choose the kind"),
+    (["--alpha", "0.1"], "choose the kind"),
     (["--global", "--mass-ratio", "2", "--section", "legs"], "REGION:FRACTION"),
 ])
 def test_cli_refuses_bad_requests(bone_file, tmp_path, capsys, options, message):
@@ -336,6 +337,18 @@ def test_cli_refuses_bad_requests(bone_file, tmp_path, capsys, options, message)
     assert main(["scale", str(bone_file), *options, "-o", str(out)]) != 0
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_mass_ratio_alone_scales_with_the_quadruped_ruleset(bone_file):
+    """What the tool is for, a mesh and a mass ratio: biology-aware with ``quadruped``."""
+    from allorules.cli import build_parser
+    from allorules.cli.scale import _scaling
+    from allorules.plugins.registry import registry_for
+    from allorules.runs.pipeline import RulesetScaling
+
+    arguments = build_parser().parse_args(["scale", str(bone_file), "--mass-ratio", "2", "-o", "out.obj"])
+    scaling = _scaling(arguments, registry_for(None))
+    assert isinstance(scaling, RulesetScaling) and scaling.ruleset.name == "quadruped" and scaling.mass_ratio == 2.0
 
 
 def test_cli_mass_ratio_without_limbs_fails_clearly(bone_file, tmp_path, capsys):

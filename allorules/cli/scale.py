@@ -2,7 +2,7 @@
 
 * ``allorules scale MESH --ruleset quadruped --mass-ratio 2 -o OUT.obj [--report R.json]
   [--rule neck-length=0.45] [--segmentation LABELS.json] [--keep-unconverged]`` — biology-aware
-  scaling (docs/biology-scaling.md).
+  scaling (docs/biology-scaling.md); ``--mass-ratio R`` with no kind chosen means ``--ruleset quadruped``.
 * ``allorules scale MESH --global --mass-ratio R -o OUT`` — one α for the whole body, the mass
   changed by R at unchanged peak limb stress; ``--global --alpha A [--scale S]`` applies the
   power law once with the user's α.
@@ -32,6 +32,7 @@ from allorules.cli.arguments import (
 from allorules.errors import AllorulesError, ScalingError
 
 log = logging.getLogger("allorules")
+DEFAULT_RULESET = "quadruped"   # what --mass-ratio R alone scales with
 
 
 def register(subcommands: argparse._SubParsersAction) -> None:
@@ -40,7 +41,8 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser = subcommands.add_parser(
         "scale",
         help=command_help("scale"),
-        description="Biology-aware scaling with --ruleset NAME --mass-ratio R: the ruleset's allometric rules "
+        description="Biology-aware scaling with --ruleset NAME --mass-ratio R (--mass-ratio R alone: the "
+        f"{DEFAULT_RULESET} ruleset): the ruleset's allometric rules "
         "(leg length, chest girth, head and abdominal mass against body mass) and its limit on limb stress are "
         "met (docs/biology-scaling.md, docs/rulesets.md). --global: one exponent α for the whole body (--mass-ratio "
         "R keeps the peak limb stress; --alpha A [--scale S] applies the power law once: α > 0 amplifies fine "
@@ -49,7 +51,9 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("mesh", help="input mesh (OBJ, PLY, STL, OFF, GLB, GLTF)")
     kind = parser.add_argument_group("what to do (one of)")
-    kind.add_argument("--ruleset", metavar="NAME|FILE", help="biology-aware scaling with this ruleset (a name or a .yaml path)")
+    kind.add_argument("--ruleset", metavar="NAME|FILE",
+                      help=f"biology-aware scaling with this ruleset (a name or a .yaml path; default {DEFAULT_RULESET} "
+                      "when only --mass-ratio is given)")
     kind.add_argument("--global", dest="global_scaling", action="store_true",
                       help="global allometric scaling (one α for the whole body)")
     kind.add_argument("--region", metavar="NAME", help="local scaling of one region, with --alpha")
@@ -108,6 +112,11 @@ def _scaling(arguments: argparse.Namespace, registry):
 
     chosen = [name for name, given in (("--ruleset", arguments.ruleset), ("--global", arguments.global_scaling),
                                        ("--region", arguments.region)) if given]
+    if not chosen and arguments.mass_ratio is not None and arguments.alpha is None and arguments.arithmetic is None:
+        # a mesh and a mass ratio: what the tool is for, biology-aware with the quadruped ruleset
+        arguments.ruleset, chosen = DEFAULT_RULESET, ["--ruleset"]
+        log.info("biology-aware scaling with the %s ruleset (--ruleset NAME for another, --global for one exponent)",
+                 DEFAULT_RULESET)
     if len(chosen) != 1:
         raise AllorulesError("choose the kind of scaling: --ruleset NAME (biology-aware), --global (with --mass-ratio R or --alpha A), or --region NAME"
                              + (f" (got {' and '.join(chosen)})" if chosen else ""))
