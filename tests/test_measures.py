@@ -268,6 +268,19 @@ def test_region_length_is_the_mean_limb_length_and_matches_the_skeleton():
     assert region_girth(body, "forelimbs") == pytest.approx(2 * np.pi, rel=5e-3)
 
 
+@pytest.mark.parametrize("cut", [-3.0, -3.4, -3.8])
+def test_a_leg_about_as_wide_as_long_is_measured_along_it(cut):
+    """A stubby leg (a cartoon's, or one a run has thickened): 2.0 to 1.2 long for a diameter of 2.
+    Its Fiedler vector runs across it, so its sections were not sections and its skeleton was a
+    point ("no measurable length"); the harmonic field from its junction to its far end runs along
+    it: the length is the capsule's from the cut to the tip, as for a long leg."""
+    v1, f1 = capsule(10.0, 1.0)
+    vertices = np.vstack([v1, v1 + [4.0, 0.0, 0.0]])
+    faces = np.vstack([f1, f1 + len(v1)])
+    body = Body(vertices, faces, np.where(vertices[:, 2] < cut, 0, 1), ("forelimbs", "chest"))
+    assert region_length(body, "forelimbs") == pytest.approx(leg_cut(body) + 5.0, rel=0.01)
+
+
 def test_load_bearing_section_is_the_smallest_away_from_junction_and_tip():
     body = legs_body()
     chosen = load_bearing_section(body)
