@@ -164,6 +164,26 @@ def test_a_stretched_run_reports_its_trunk_and_is_refused_beyond_the_tolerance(a
     assert not refused.converged and any("trunk's length reached exponent" in message for message in refused.messages)
 
 
+def test_the_trunks_verdict_says_where_the_rules_leave_the_mass(animal, registry):
+    """The head and abdomen lighter than isometric at ×2 (M^0.70, M^0.74) and the open regions
+    isometric leave the chest and legs more than ×2 of their mass, less than ×0.5 at ×0.5; an
+    isometric ruleset leaves them exactly R, and the verdict says nothing."""
+    from allorules.measure.mass import body_mass, region_mass
+    from allorules.runs.ruleset_run import mass_left
+
+    body = animal.body()
+    quadruped = load_ruleset("quadruped", registry)
+    shares = {name: region_mass(body, name) / body_mass(body) for name in body.region_names}
+    expected = (2.0 - shares["head"] * 2 ** 0.7 - shares["abdomen"] * 2 ** 0.74 - (shares["neck"] + shares["tail"]) * 2) \
+        / (shares["chest"] + shares["forelimbs"] + shares["hindlimbs"])
+    grown = mass_left(quadruped, body, 2.0)
+    assert f"×{expected:.2f} in mass where the body changes ×2" in grown and expected > 2.1, grown
+    assert f"the head, {100 * shares['head']:.0f} % of the body, at M^0.70" in grown and "the neck and tail isometric" in grown
+    shrunk = float(re.search(r"×([0-9.]+) in mass", mass_left(quadruped, body, 0.5)).group(1))
+    assert shrunk < 0.5
+    assert mass_left(load_ruleset("isometric", registry), body, 2.0) == ""
+
+
 def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, monkeypatch, tmp_path):
     """Without the trunk's stretch Eq. 9 can still draw the trunk out: the bull 386 at x2 met every
     rule with its trunk's length at exponent 0.6. Unless a rule measures a torso region's length, a
@@ -177,6 +197,7 @@ def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, mo
     refused = _run(animal, registry, quadruped, 2.0)
     assert not refused.converged
     assert any("no rule asks for it" in message for message in refused.messages), refused.messages
+    assert any("the rules leave the chest, forelimbs and hindlimbs ×" in message for message in refused.messages)
     assert refused.missed == ("trunk",) and refused.as_dict()["missed"] == ["trunk"]     # what the retries read
     assert plain.missed == () and plain.settle_trunk() is None
     # the refusal says how to accept that trunk: a rule on it, which then converges

@@ -362,7 +362,45 @@ def _check_trunk_length(result: BiologyScalingResult, initial: Body, final: Body
                 f"{1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE} (solver.trunk_stretch)"]
     longer = trunk_longer(exponent, result.target_mass_ratio)
     return [f"the trunk's length reached exponent {exponent:.3f}, beyond {1 / 3:.3f} ± {TRUNK_LENGTH_TOLERANCE}, "
-            "and no rule asks for it: the animal came out " + ("stretched" if longer else "shortened")]
+            "and no rule asks for it: the animal came out " + ("stretched" if longer else "shortened")
+            + mass_left(ruleset, initial, result.target_mass_ratio)]
+
+
+MASS_LEFT_NOTE = 0.05   # the trunk's verdict says where the rules leave the mass when it is this far from isometric
+
+
+def mass_left(ruleset, body: Body, ratio: float) -> str:
+    """Where the ruleset leaves the body's mass (a clause for the trunk's verdict), or "".
+
+    The regions whose mass a rule fixes (the head at M^0.70, the abdomen at M^0.74) and the open
+    regions, held isometric, take their share of the mass ratio R; the regions the rules measure
+    otherwise (the chest by its girth, the legs by their length) must take the rest. When that is
+    more than MASS_LEFT_NOTE away from R, what their rules leave free (the chest's length) takes it:
+    a cartoon dog whose head is 24 % of its body leaves its chest and legs ×2.47 at R = 2, and its
+    trunk grew at 0.665; the generated horse leaves them ×2.30.
+    """
+    from allorules.measure.mass import body_mass, region_mass
+
+    try:
+        total = body_mass(body)
+        shares = {name: region_mass(body, name) / total for name in body.region_names if body.has_region(name)}
+    except AllorulesError:
+        return ""
+    fixed = {rule.region: rule.exponent for rule in ruleset.rules if rule.measure == "mass" and rule.region in shares}
+    measured = {rule.region for rule in ruleset.rules}
+    open_regions = [name for name in shares if name not in measured]
+    rest = [name for name in shares if name in measured and name not in fixed]
+    if not fixed or not rest or sum(shares[name] for name in rest) <= 0:
+        return ""
+    taken = sum(shares[name] * ratio ** exponent for name, exponent in fixed.items()) + sum(shares[name] * ratio for name in open_regions)
+    left = (ratio - taken) / sum(shares[name] for name in rest)
+    if left > 0 and abs(left / ratio - 1.0) < MASS_LEFT_NOTE:
+        return ""
+    why = "; ".join(f"the {name}, {100 * shares[name]:.0f} % of the body, at M^{exponent:.2f}" for name, exponent in fixed.items())
+    if open_regions:
+        why += f"; the {' and '.join(open_regions)} isometric"
+    names = ", ".join(rest[:-1]) + " and " + rest[-1] if len(rest) > 1 else rest[0]
+    return f" (the rules leave the {names} ×{left:.2f} in mass where the body changes ×{ratio:g}: {why})"
 
 
 def _capped(ruleset):
