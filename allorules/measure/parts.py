@@ -213,10 +213,10 @@ def _part_field(part: RegionPart) -> np.ndarray:
 
     A limb, or any part with one opening: its own Fiedler vector, oriented to grow away from its
     largest open boundary (the junction), unless it runs across the part (``ACROSS_SHARE``): then
-    the harmonic function from 0 on the junction to 1 at the vertex farthest from it. A part with two openings of comparable size (a neck:
-    to the chest and to the head; the second at least ``SECOND_OPENING_SHARE`` of the first's
-    girth): the harmonic function from 0 on the larger opening to 1 on the other, which runs
-    along a tube whatever its proportions.
+    the harmonic function from 0 on the junction to 1 at the vertex farthest from it. A part with
+    two openings of comparable size (a neck: to the chest and to the head; the second at least
+    ``SECOND_OPENING_SHARE`` of the first's girth): the harmonic function from 0 on the larger
+    opening to 1 on the other, which runs along a tube whatever its proportions.
     """
     if len(part.vertices) < 4:
         raise MeasurementError(f"a part of region {part.region!r} has only {len(part.vertices)} vertices; it is too small to measure")

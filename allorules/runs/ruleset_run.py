@@ -46,6 +46,7 @@ import numpy as np
 from allorules.body import Body
 from allorules.errors import AllorulesError, ScalingError, SegmentationError
 from allorules.measure.length import trunk_length
+from allorules.measure.mass import body_mass, region_mass
 from allorules.measure.parts import TORSO_REGIONS, carry_choices
 from allorules.measure.quality import distortions, flipped_faces, swollen_legs
 from allorules.measure.stress import StressGauge
@@ -379,8 +380,6 @@ def mass_left(ruleset, body: Body, ratio: float) -> str:
     a cartoon dog whose head is 24 % of its body leaves its chest and legs ×2.47 at R = 2, and its
     trunk grew at 0.665; the generated horse leaves them ×2.30.
     """
-    from allorules.measure.mass import body_mass, region_mass
-
     try:
         total = body_mass(body)
         shares = {name: region_mass(body, name) / total for name in body.region_names if body.has_region(name)}
