@@ -293,6 +293,42 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
     assert pipeline.scale(body, scaling, registry=pipeline.registry_for(None)).converged and calls == [1]
 
 
+def test_a_run_made_again_that_cannot_solve_a_step_is_one_more_miss_not_the_end(generated_horse, monkeypatch):
+    """A run made again whose step cannot be solved (the cow 381 sitting at ×2, held by soft terms:
+    its folded horns' volume at step 6) does not end the command with that error: it did not help,
+    the first run is reported with what each try did. The first run's own failure still raises."""
+    from allorules.errors import ScalingError
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+    from allorules.runs.results import BiologyScalingResult
+    from allorules.solve.open_regions import OpenRegionOutcome
+
+    body = generated_horse.body()
+    calls = []
+
+    def fake(labelled, ruleset, ratio, **options):
+        calls.append(ruleset.open_regions.hold)
+        outcome = OpenRegionOutcome("neck", "isometric", "length", 1 / 3, 1 / 3, True, 0.02, ruleset.open_regions.hold)
+        missed = BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=False,
+                                      messages=["rule 'foreleg-length' reached exponent 0.381, target 0.360"],
+                                      open_regions=[outcome])
+        if len(calls) == 1:
+            return missed
+        stopped = BiologyScalingResult(body=labelled, target_mass_ratio=ratio, converged=False, open_regions=[outcome],
+                                       messages=["step 6 of 8 could not be solved: volume of region 'horns' cannot be determined"])
+        raise ScalingError(stopped.messages[0], closest=stopped)
+
+    monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
+    result = pipeline.scale(body, pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0), registry=pipeline.registry_for(None))
+    assert len(calls) > 2 and calls[-1] == "soft"                        # every try was made
+    assert not result.converged and result.messages[0].startswith("rule 'foreleg-length'")   # the first run's verdict
+    assert sum("could not be solved" in warning for warning in result.warnings) == len(calls) - 1
+    calls.clear()
+    calls.append("first fails")   # the first run's own failure is the command's
+    with pytest.raises(ScalingError, match="could not be solved"):
+        pipeline.scale(body, pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0), registry=pipeline.registry_for(None))
+
+
 def test_a_head_whose_rule_fixes_its_size_is_held_at_that_size_unless_told(generated_horse):
     """rule_held_regions: quadruped's head (mass 0.70) is held at scale^0.70 (R^(0.7/3)); a head with
     a length rule that agrees is too; rules that ask two sizes, a torso or limb region, a measure of

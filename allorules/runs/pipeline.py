@@ -30,7 +30,7 @@ import numpy as np
 
 from allorules import __version__
 from allorules.body import Body, Labelling
-from allorules.errors import MeasurementError, SegmentationError
+from allorules.errors import MeasurementError, ScalingError, SegmentationError
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
 from allorules.measure.quality import QualityReport, flipped_faces, quality_report
@@ -319,8 +319,20 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return scale_with_ruleset(labelled, ruleset, scaling.mass_ratio, registry=registry, modes=modes,
                                   section=scaling.section, use_cache=use_cache, progress=progress)
 
+    def again_with(ruleset, labelled):
+        # A run made again whose step cannot be solved is one more run that missed (the result it
+        # reached says which step), not the end of the command: the cow 381 sitting at ×2, held by
+        # soft terms, could not measure its folded horns' volume at step 6, and the first run and
+        # what the others did were lost with a one-line error about horns nobody asked to scale.
+        try:
+            return run(ruleset, labelled)
+        except ScalingError as error:
+            if not isinstance(error.closest, BiologyScalingResult):
+                raise
+            return error.closest
+
     def run_with(solver):
-        return run(replace(scaling.ruleset, solver=solver), body)
+        return again_with(replace(scaling.ruleset, solver=solver), body)
 
     result = run(scaling.ruleset, body)
     opened, solver = scaling.ruleset.open_regions, scaling.ruleset.solver
@@ -356,7 +368,7 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     appendages = {name: "isometric" for name in body.region_names
                   if name in NEIGHBOUR_REGION and opened.setting(name) == "isometric"}
     soft = replace(scaling.ruleset, open_regions=replace(opened, hold="soft", regions={**appendages, **opened.regions}))
-    again = run(soft, fold_regions(body, wanted_regions(soft)))
+    again = again_with(soft, fold_regions(body, wanted_regions(soft)))
     strayed = [outcome for outcome in again.open_regions if not outcome.met]
     if not again.converged or strayed:
         why = (again.messages[0] if again.messages else "a target missed") if not again.converged else (

@@ -232,7 +232,7 @@ def scale_with_ruleset(
             _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
             result.converged = False
             message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
-            result.messages.append(message)
+            result.messages.insert(0, message)     # first: what stopped the run (the misses of its last mesh follow)
             raise ScalingError(message, closest=result) from None
         basis_age += 1
         # The steps are alike (same r, nearly the same mesh): the next one starts where this one ended.
