@@ -239,7 +239,7 @@ def test_the_verdict_says_which_way_the_trunk_went(animal, registry, ratio, expo
     result = BiologyScalingResult(body=scaled, target_mass_ratio=ratio)
     [message] = ruleset_run._check_trunk_length(result, body, scaled, load_ruleset("quadruped", registry), False)
     assert result.trunk_length_exponent == pytest.approx(exponent)
-    assert message.endswith(f"came out {said}")
+    assert re.search(r"the animal came out (\w+)", message).group(1) == said
 
 
 def test_the_trunks_length_is_a_measure_a_rule_can_name(animal, registry, tmp_path):
