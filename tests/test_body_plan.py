@@ -101,6 +101,23 @@ def test_labels_agree_with_the_truth_in_six_poses_turned_at_random(posed, preset
     assert agreement(animal, labelled) >= 0.95
 
 
+@pytest.mark.parametrize("preset, in_doubt, settle", [("horse", "feet", "--up DIR and --forward DIR"),
+                                                       ("dog", "head from the tail", "--forward DIR")])
+def test_a_sitting_animal_refused_is_labelled_as_its_refusal_says(posed, preset, in_doubt, settle):
+    """Sitting, the horse's feet are in doubt (a hind foot paired with its tail's tip) and the dog's
+    ends; each refusal names the directions that settle it, and given them (as a user who knows
+    the file's axes gives them) the labels agree with the truth: horse 0.966, dog 0.982 (before the
+    feet were chosen with the body's directions, the horse was refused with them too)."""
+    animal = posed(preset, "sit")
+    matrix = random_rotation(2)
+    body = Body(animal.vertices @ matrix.T, animal.faces)
+    with pytest.raises(SegmentationError, match=in_doubt) as refused:
+        label_quadruped(body)
+    assert settle in str(refused.value)
+    labelled = label_quadruped(body, up=matrix @ [0.0, 1.0, 0.0], forward=matrix @ [1.0, 0.0, 0.0])
+    assert agreement(animal, labelled) >= 0.95
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("pose", ["stand", "walk", "rear", "lie", "curl"])
 def test_the_giraffe_in_poses(posed, pose):

@@ -15,7 +15,10 @@ nearly as they were, and which do not depend on the file's orientation, units or
    branches, equal AGD), fore and hind legs are of a kind (lengths within a factor), and the feet
    are prominent tips. Each departure costs a penalty of about one where it
    is clearly wrong; a ground plane the four feet stand on (the common case) at the end of legs
-   reaching down to it lowers the cost (a horn's tip may lie on such a plane too). The
+   reaching down to it lowers the cost (a horn's tip may lie on such a plane too). Given the body's
+   up (``--up``), feet lie below its centre (ears do not); given its up and forward, the two feet of
+   a pair lie on either side of its midplane, whatever the pose (a nose and an ear beside it do
+   not). The
    cheapest hypothesis wins; ``feet`` confidence is its cost margin over the next one.
 3. **Fore or hind** (:func:`_head_tail_cues`). Of the two ends, the head end is decided by
    independent cues, each an evidence in [−1, 1]:
@@ -57,6 +60,8 @@ PAIR_LENGTH_MISMATCH = 0.30    # relative difference of the two legs of a pair
 PAIR_AGD_MISMATCH = 0.15       # of the AGD range
 LEG_RATIO = 0.45               # shortest / longest leg below this costs
 SPINE_RATIO = 0.35             # spine between the girdles / mean leg length below this costs
+SIDES = 1.0                    # per pair whose feet are not mirrored across the midplane (directions given)
+ABOVE = 0.25                   # a foot this share of the body's height above its centre costs one (--up given)
 FLAT_LEG = 2.5                 # ring flatness (long / short extent) above this is not a leg's
 GROUND_BONUS = 1.0             # four feet on a common supporting plane (standing), legs reaching straight down to it
 LEG_DOWN = 0.25                # cosine of a leg's direction to straight down below which its foot adds nothing
@@ -83,6 +88,10 @@ PRESENCE_FULL = 0.16           # ... at or above this: something surely does (th
 
 SETTLE = ("settle it with --forward DIR (tail to head), a labels file (--segmentation FILE), or "
           "allorules segment MESH --patches 24 --png patches.png and a merge file")
+# The feet are chosen with the body's directions when both are given (:func:`_feet_hypotheses`);
+# forward alone does not choose them.
+SETTLE_FEET = ("settle it with --up DIR and --forward DIR (the body's feet-to-back and tail-to-head), a labels "
+               "file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a merge file")
 
 
 @dataclass
@@ -134,11 +143,19 @@ class _Hypothesis:
     spine: float
 
 
-def _feet_hypotheses(tips: _Tips, d, vertices, mass, up) -> list[_Hypothesis]:
-    """Every pair of disjoint candidate pairs, with its cost (lowest first)."""
+def _mirrored(a: float, b: float) -> float:
+    """How nearly two offsets from a plane are mirror images: 1 for a = −b, 0 with one on the
+    plane, −1 for a = b."""
+    return -a * b / max(0.5 * (a * a + b * b), 1e-30)
+
+
+def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hypothesis]:
+    """Every pair of disjoint candidate pairs, with its cost (lowest first); ``side``, the body's
+    unit side direction when its up and forward are given."""
     n = len(tips.vertices)
     hypotheses = []
     centroid = np.average(vertices, axis=0, weights=mass)
+    height = float(np.ptp(vertices @ up)) if up is not None else 1.0
     for four in itertools.combinations(range(n), 4):
         a, b, c, e = four
         pairings = [((a, b), (c, e)), ((a, c), (b, e)), ((a, e), (b, c))]
@@ -174,6 +191,17 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up) -> list[_Hypothesis]:
         if ground is not None:
             down = -(tips.pointing[list(four)] @ ground)
             terms["ground"] = -GROUND_BONUS * float(np.mean(np.clip((down - LEG_DOWN) / (1.0 - LEG_DOWN), 0.0, 1.0)))
+        if up is not None:
+            # Feet are below the body's centre along its up (feet to back) in any pose, lying or
+            # rearing; a donkey lying with its head down has its ears above it, mirrored like feet.
+            above = (vertices[tips.vertices[[p, q, r, s]]] - centroid) @ up / height
+            terms["above"] = float(np.clip(above / ABOVE, 0.0, 1.0).sum())
+        if side is not None:
+            # The left and right feet of a pair stand on either side of the body's midplane in any
+            # pose (one reaching forward and one back, the animal lying on its side): a donkey lying
+            # with its head down has its nose on the midplane and an ear beside it (0.11: costs 0.39).
+            offset = (vertices[tips.vertices] - centroid) @ side
+            terms["sides"] = SIDES * sum(max(0.0, 0.5 - _mirrored(offset[x], offset[y])) for x, y in ((p, q), (r, s)))
         cost = sum(terms.values())
         hypotheses.append(_Hypothesis(((p, q), (r, s)), cost, terms, legs, spine))
     hypotheses.sort(key=lambda h: h.cost)
@@ -297,8 +325,9 @@ class FeetChoice:
     terms: dict[str, float]
 
 
-def choose_feet(extremities: Extremities, vertices, faces, mass, up=None) -> FeetChoice:
-    """The two pairs of feet (see the module's step 2), or a SegmentationError saying why not."""
+def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forward=None) -> FeetChoice:
+    """The two pairs of feet (see the module's step 2), or a SegmentationError saying why not.
+    ``up`` and ``forward`` are the body's directions where the user gave them."""
     index = extremities.candidates
     if extremities.contrast < MIN_CONTRAST:
         raise SegmentationError(
@@ -316,18 +345,21 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None) -> Fee
     pointing = np.array([_pointing(vertices, faces, extremities.distance[int(t)], level, int(t))
                          for t, level in zip(extremities.vertices[index], levels)]).reshape(-1, 3)
     tips = _Tips(extremities.vertices[index], extremities.persistence[index], extremities.agd[index], flatness, pointing)
-    hypotheses = _feet_hypotheses(tips, d, vertices, mass, up)
+    side = None
+    if up is not None and forward is not None and np.linalg.norm(np.cross(forward, up)) > 0.1:
+        side = np.cross(forward, up) / np.linalg.norm(np.cross(forward, up))
+    hypotheses = _feet_hypotheses(tips, d, vertices, mass, up, side)
     best = hypotheses[0]
     margin = hypotheses[1].cost - best.cost if len(hypotheses) > 1 else np.inf
     (p, q), (r, s) = best.pairs
     if best.cost > 1.5:
         raise SegmentationError(
             "no four extremities make a quadruped's two pairs of legs on this mesh (the best guess costs "
-            f"{best.cost:.2f}); {SETTLE}")
+            f"{best.cost:.2f}); {SETTLE_FEET}")
     if margin < FEET_MARGIN:
         raise SegmentationError(
             f"cannot tell which four extremities are the feet (two guesses within a margin of {margin:.2f}); "
-            f"{SETTLE}")
+            f"{SETTLE_FEET}")
     feet = tips.vertices[[p, q, r, s]]
     centroid = np.average(vertices, axis=0, weights=mass)
     ground = _ground_plane(vertices[feet], vertices, centroid, up)

@@ -162,7 +162,7 @@ def _unit_or_none(direction, name: str) -> np.ndarray | None:
 
 def _label_connected(vertices, faces, graph, mass, up, forward):
     extremities = body_plan.read_extremities(graph, mass)
-    choice = body_plan.choose_feet(extremities, vertices, faces, mass, up)
+    choice = body_plan.choose_feet(extremities, vertices, faces, mass, up, forward)
     feet = np.array(choice.fore_pair + choice.other_pair)
     distance = extremities.distance
     # Each leg is followed up from its foot by geodesic rings (they stay across the leg around a
@@ -315,7 +315,7 @@ def _check_leg_pairs(mass, legs, pairs) -> None:
         if max(areas) <= 0 or abs(areas[0] - areas[1]) > LEG_PAIR_MISMATCH * max(areas):
             raise SegmentationError(
                 f"the two legs found for a pair are not alike (areas {min(areas) / max(max(areas), 1e-300):.0%} of each "
-                f"other), so the four feet are not certain; {body_plan.SETTLE}")
+                f"other), so the four feet are not certain; {body_plan.SETTLE_FEET}")
 
 
 
