@@ -319,17 +319,20 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return scale_with_ruleset(labelled, ruleset, scaling.mass_ratio, registry=registry, modes=modes,
                                   section=scaling.section, use_cache=use_cache, progress=progress)
 
-    def again_with(ruleset, labelled):
-        # A run made again whose step cannot be solved is one more run that missed (the result it
-        # reached says which step), not the end of the command: the cow 381 sitting at ×2, held by
-        # soft terms, could not measure its folded horns' volume at step 6, and the first run and
-        # what the others did were lost with a one-line error about horns nobody asked to scale.
+    def again_with(ruleset, labelled) -> BiologyScalingResult | _FailedTry:
+        # A run made again that stops is one more run that missed (the result it reached says which
+        # step, or its error says why), not the end of the command: the cow 381 sitting at ×2, held
+        # by soft terms, could not measure its folded horns' volume (at step 6, then, measured on a
+        # new working mesh, at the start), and the first run and what the others did were lost with
+        # a one-line error about horns nobody asked to scale.
         try:
             return run(ruleset, labelled)
         except ScalingError as error:
-            if not isinstance(error.closest, BiologyScalingResult):
-                raise
-            return error.closest
+            if isinstance(error.closest, BiologyScalingResult):
+                return error.closest
+            return _FailedTry(str(error))
+        except MeasurementError as error:
+            return _FailedTry(str(error))
 
     def run_with(solver):
         return again_with(replace(scaling.ruleset, solver=solver), body)
@@ -384,6 +387,21 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
                           "isometric: see open_regions in the report", *tried]
     log.warning("%s", again.warnings[0])
     return again
+
+
+@dataclass(frozen=True)
+class _FailedTry:
+    """A run made again that stopped with an error and no result of its own: the tries that
+    follow read it as one more miss, its error the reason (:func:`_scale_with_ruleset`)."""
+
+    reason: str
+    converged: bool = False
+    trunk_length_exponent: None = None
+    open_regions: tuple = ()
+
+    @property
+    def messages(self) -> list[str]:
+        return [self.reason]
 
 
 def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> BiologyScalingResult:
