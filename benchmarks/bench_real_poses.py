@@ -8,7 +8,9 @@ those labels are its truth. It is then put into each pose of
 :data:`allorules.mesh.quadruped_poses.POSES` from those labels (:func:`allorules.mesh.repose.repose`)
 and turned at random, as a user's posed file would come, and labelled again: the share of the
 surface whose label agrees with the standing one, the hand marks' verdict (nose on the head, each
-foot on a leg; head and tail swapped?), or the refusal. With ``--scale``, each posed animal is then
+foot on a leg; head and tail swapped?), or the refusal; a refusal is then settled as it says, with
+the directions it names (``--forward``, or ``--up`` and ``--forward``) given from the standing
+frame turned with the mesh, as a user who knows the file's axes gives them. With ``--scale``, each posed animal is then
 scaled as ``allorules scale`` would (its own labels, the working mesh, ``quadruped``): converged,
 the worst rule's miss, the trunk's length exponent, folded faces, seconds. Animals whose legs touch
 (one piece for a pair) cannot be posed and are listed as such.
@@ -65,6 +67,21 @@ def _scale(vertices: np.ndarray, faces: np.ndarray, ratio: float) -> dict:
             "seconds": time.perf_counter() - started}
 
 
+def _settled(error: AllorulesError, turned: np.ndarray, faces: np.ndarray, standing: Body, rotation: np.ndarray,
+             marks) -> dict:
+    """The refused animal labelled again with the directions its refusal names."""
+    directions = {"forward": rotation @ standing.frame.forward}
+    if "--up" in str(error):
+        directions["up"] = rotation @ standing.frame.up
+    try:
+        labelled = label_quadruped(Body(turned, faces), **directions)
+    except AllorulesError as again:
+        return {"given": sorted(directions), "refused": str(again)}
+    verdict = label_check.check_labels(labelled, marks)
+    return {"given": sorted(directions), "agreement": _agreement(labelled, standing), "right": verdict.right,
+            "swapped": verdict.swapped}
+
+
 def main() -> None:
     marks_of = label_check.read_hand_marks(HAND_MARKS)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -100,7 +117,12 @@ def main() -> None:
                 labelled = label_quadruped(Body(turned, prepared.faces))
             except AllorulesError as error:
                 row.update(refused=str(error), seconds=time.perf_counter() - started)
-                print(f"| {name} | {pose} | refused: {error} |", flush=True)
+                settled = row["settled"] = _settled(error, turned, prepared.faces, standing, rotation, marks)
+                given = " and ".join(f"--{direction}" for direction in settled["given"])
+                outcome = (f"refused again: {settled['refused']}" if "refused" in settled else
+                           f"{settled['agreement']:.3f} {'right' if settled['right'] else 'WRONG'}"
+                           f"{', SWAPPED' if settled['swapped'] else ''}")
+                print(f"| {name} | {pose} | refused: {error} | given {given}: {outcome} |", flush=True)
                 rows.append(row)
                 continue
             verdict = label_check.check_labels(labelled, marks)

@@ -16,9 +16,9 @@ nearly as they were, and which do not depend on the file's orientation, units or
    are prominent tips. Each departure costs a penalty of about one where it
    is clearly wrong; a ground plane the four feet stand on (the common case) at the end of legs
    reaching down to it lowers the cost (a horn's tip may lie on such a plane too). Given the body's
-   up (``--up``), feet lie below its centre (ears do not); given its up and forward, the two feet of
-   a pair lie on either side of its midplane, whatever the pose (a nose and an ear beside it do
-   not). The
+   up and forward (``--up`` and ``--forward``: its own frame, feet to back and tail to head), feet
+   lie below its centre (ears do not) and the two feet of a pair on either side of its midplane,
+   whatever the pose (a nose and an ear beside it do not). The
    cheapest hypothesis wins; ``feet`` confidence is its cost margin over the next one.
 3. **Fore or hind** (:func:`_head_tail_cues`). Of the two ends, the head end is decided by
    independent cues, each an evidence in [−1, 1]:
@@ -61,7 +61,7 @@ PAIR_AGD_MISMATCH = 0.15       # of the AGD range
 LEG_RATIO = 0.45               # shortest / longest leg below this costs
 SPINE_RATIO = 0.35             # spine between the girdles / mean leg length below this costs
 SIDES = 1.0                    # per pair whose feet are not mirrored across the midplane (directions given)
-ABOVE = 0.25                   # a foot this share of the body's height above its centre costs one (--up given)
+ABOVE = 0.25                   # a foot this share of the body's height above its centre costs one (directions given)
 FLAT_LEG = 2.5                 # ring flatness (long / short extent) above this is not a leg's
 GROUND_BONUS = 1.0             # four feet on a common supporting plane (standing), legs reaching straight down to it
 LEG_DOWN = 0.25                # cosine of a leg's direction to straight down below which its foot adds nothing
@@ -86,12 +86,17 @@ PRESENCE_FAINT = 0.04          # an end's most prominent tip at or below this: n
 PRESENCE_FULL = 0.16           # ... at or above this: something surely does (the horse 387's stub of a
                                # tail is 0.075 as it comes, 0.084 Loop-subdivided: a step there refused it)
 
-SETTLE = ("settle it with --forward DIR (tail to head), a labels file (--segmentation FILE), or "
-          "allorules segment MESH --patches 24 --png patches.png and a merge file")
-# The feet are chosen with the body's directions when both are given (:func:`_feet_hypotheses`);
-# forward alone does not choose them.
-SETTLE_FEET = ("settle it with --up DIR and --forward DIR (the body's feet-to-back and tail-to-head), a labels "
-               "file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a merge file")
+BY_HAND = "a labels file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a merge file"
+SETTLE = f"settle it with --forward DIR (tail to head), {BY_HAND}"   # head or tail (--forward decides it)
+
+
+def settle_feet(up, forward) -> str:
+    """How a refusal of the feet says to settle it: the feet are chosen with the body's directions
+    when both are given (:func:`_feet_hypotheses`; forward alone chooses none), so those, unless
+    they were given."""
+    if up is not None and forward is not None:
+        return f"the directions given did not settle it: give {BY_HAND}"
+    return f"settle it with --up DIR and --forward DIR (the body's feet-to-back and tail-to-head), {BY_HAND}"
 
 
 @dataclass
@@ -191,12 +196,12 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
         if ground is not None:
             down = -(tips.pointing[list(four)] @ ground)
             terms["ground"] = -GROUND_BONUS * float(np.mean(np.clip((down - LEG_DOWN) / (1.0 - LEG_DOWN), 0.0, 1.0)))
-        if up is not None:
-            # Feet are below the body's centre along its up (feet to back) in any pose, lying or
-            # rearing; a donkey lying with its head down has its ears above it, mirrored like feet.
+        if side is not None:
+            # Given the body's own frame (up alone may be the world's: Blender gives +Z, and a rearing
+            # animal's fore feet rise above its centre there), feet are below the body's centre in any
+            # pose; a donkey lying with its head down has its ears above it, mirrored like feet.
             above = (vertices[tips.vertices[[p, q, r, s]]] - centroid) @ up / height
             terms["above"] = float(np.clip(above / ABOVE, 0.0, 1.0).sum())
-        if side is not None:
             # The left and right feet of a pair stand on either side of the body's midplane in any
             # pose (one reaching forward and one back, the animal lying on its side): a donkey lying
             # with its head down has its nose on the midplane and an ear beside it (0.11: costs 0.39).
@@ -352,14 +357,17 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
     best = hypotheses[0]
     margin = hypotheses[1].cost - best.cost if len(hypotheses) > 1 else np.inf
     (p, q), (r, s) = best.pairs
-    if best.cost > 1.5:
+    # the directions' terms tell guesses apart; what a quadruped's feet cost is judged without them
+    # (a bull galloping, a fore foot crossing its midplane: 0.27 more)
+    cost = best.cost - best.terms.get("above", 0.0) - best.terms.get("sides", 0.0)
+    if cost > 1.5:
         raise SegmentationError(
             "no four extremities make a quadruped's two pairs of legs on this mesh (the best guess costs "
-            f"{best.cost:.2f}); {SETTLE_FEET}")
+            f"{cost:.2f}); {settle_feet(up, forward)}")
     if margin < FEET_MARGIN:
         raise SegmentationError(
             f"cannot tell which four extremities are the feet (two guesses within a margin of {margin:.2f}); "
-            f"{SETTLE_FEET}")
+            f"{settle_feet(up, forward)}")
     feet = tips.vertices[[p, q, r, s]]
     centroid = np.average(vertices, axis=0, weights=mass)
     ground = _ground_plane(vertices[feet], vertices, centroid, up)

@@ -126,7 +126,8 @@ def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True)
     if missing and complete:
         raise SegmentationError(
             f"found no {' and no '.join(missing)} on this mesh; give the regions with --segmentation FILE "
-            "(allorules segment --patches 24 and a merge file), or try --up/--forward"
+            "(allorules segment --patches 24 and a merge file)"
+            + ("" if up is not None and forward is not None else ", or try --up/--forward")
         )
     if complete:
         _check_proportions(labels, vertex_areas(vertices, faces))
@@ -170,7 +171,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     # standing on its feet, across the ground's normal: at its armpit or groin (_follow_legs).
     ground = up if up is not None else choice.ground
     legs, axes, leg_tops = _follow_legs(vertices, faces, graph, mass, choice, distance, ground)
-    _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair))
+    _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair), body_plan.settle_feet(up, forward))
     top = body_plan.leg_top_distances(graph, legs, feet)
     first, second = body_plan.read_ends(extremities, top, graph, legs, leg_tops, choice.fore_pair, choice.other_pair,
                                         vertices, faces, mass, ground)
@@ -307,7 +308,7 @@ def _profile_knee(track, values) -> int | None:
 LEG_PAIR_MISMATCH = 0.5   # two legs of a pair whose areas differ more than this (of the larger) are not a pair
 
 
-def _check_leg_pairs(mass, legs, pairs) -> None:
+def _check_leg_pairs(mass, legs, pairs, settle: str) -> None:
     """The two legs of a pair are mirror images: refuse when their areas are far apart (an ear or
     a trunk taken for a leg)."""
     for pair in pairs:
@@ -315,7 +316,7 @@ def _check_leg_pairs(mass, legs, pairs) -> None:
         if max(areas) <= 0 or abs(areas[0] - areas[1]) > LEG_PAIR_MISMATCH * max(areas):
             raise SegmentationError(
                 f"the two legs found for a pair are not alike (areas {min(areas) / max(max(areas), 1e-300):.0%} of each "
-                f"other), so the four feet are not certain; {body_plan.SETTLE_FEET}")
+                f"other), so the four feet are not certain; {settle}")
 
 
 
