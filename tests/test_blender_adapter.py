@@ -68,6 +68,26 @@ def test_scale_arrays_gives_every_blender_vertex_a_place_on_the_same_ground(stan
     assert np.ptp(new[:, 0]) / np.ptp(vertices[:, 0]) == pytest.approx(1.2 ** (1 / 3), rel=0.05)
 
 
+def test_a_sitting_animal_refused_for_its_feet_is_scaled_once_forward_is_set():
+    """The generated horse sitting, as Blender holds it (+Z up, facing -Y): with the panel's Up
+    alone its feet are in doubt, and the refusal names the panel's settings (not the command
+    line's); with Forward set to World -Y as well, the feet are found and it is scaled."""
+    from allorules.mesh.quadruped import generate_quadruped
+
+    horse = generate_quadruped("horse", 2000, pose="sit")
+    turn = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])   # +X forward → −Y, +Y up → +Z
+    vertices, up = horse.vertices @ turn.T, np.array([0.0, 0.0, 1.0])
+    with pytest.raises(AllorulesError, match="feet") as refused:
+        adapter.scale_arrays(vertices, horse.faces, mass_ratio=2.0, modes=40, global_mode=True, up=up)
+    said = adapter.in_panel_terms(str(refused.value))
+    assert "the Up and Forward settings" in said and "--up" not in said and "--forward" not in said
+    forward = np.array(adapter.FORWARD_DIRECTIONS["-Y"])
+    new, report = adapter.scale_arrays(vertices, horse.faces, mass_ratio=2.0, modes=40, global_mode=True, up=up,
+                                       forward=forward)
+    assert report["converged"] and np.dot(report["forward"], forward) > 0.99
+    assert report["mass_ratio"] == pytest.approx(2.0, rel=0.01) and new.shape == vertices.shape
+
+
 def test_bad_settings_are_refused_before_any_work(standing_z_up):
     vertices, faces, _ = standing_z_up
     with pytest.raises(RulesetError, match="unknown ruleset 'no-such-set'"):

@@ -284,7 +284,8 @@ class ModalDriver:
 
         self.operator = Driven()
         self.operator.reports = []
-        defaults = dict(ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z")
+        defaults = dict(ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z",
+                        forward="AUTO")
         for key, value in {**defaults, **settings}.items():
             setattr(self.operator, key, value)
         self.status: list = []

@@ -21,6 +21,24 @@ from allorules.runs.progress import RunProgress
 
 POSTURES = ("keep", "upright", "free")
 
+# The add-on's choices of the animal's forward direction (tail to head), in world space; Blender's
+# front view looks along +Y, so a model facing it faces −Y.
+FORWARD_DIRECTIONS = {"AUTO": None, "-Y": (0.0, -1.0, 0.0), "+Y": (0.0, 1.0, 0.0), "+X": (1.0, 0.0, 0.0),
+                      "-X": (-1.0, 0.0, 0.0)}
+
+# The command line's direction options as the panel names them: a refusal says how to settle it
+# (the labeller: "settle it with --up DIR and --forward DIR ..."), and in Blender that is the panel.
+_PANEL_TERMS = (("--up DIR and --forward DIR (the body's feet-to-back and tail-to-head)", "the Up and Forward settings"),
+                ("--forward DIR (tail to head)", "the Forward setting"),
+                ("--up/--forward", "the Up and Forward settings"))
+
+
+def in_panel_terms(message: str) -> str:
+    """``message`` with the command line's --up/--forward named as the panel's settings."""
+    for option, setting in _PANEL_TERMS:
+        message = message.replace(option, setting)
+    return message
+
 
 def check_settings(*, ruleset: str, mass_ratio: float, modes: int | None, posture: str | None,
                    global_mode: bool) -> None:
@@ -40,13 +58,14 @@ def check_settings(*, ruleset: str, mass_ratio: float, modes: int | None, postur
 
 def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "quadruped", mass_ratio: float,
                  modes: int | None = None, posture: str | None = None, global_mode: bool = False,
-                 up: np.ndarray | None = None, progress: RunProgress | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+                 up: np.ndarray | None = None, forward: np.ndarray | None = None,
+                 progress: RunProgress | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Scale the quadruped ``vertices`` (n×3) / ``faces`` (m×3 triangles) by the body-mass ratio.
 
     ``ruleset``: a ruleset name or YAML path (ignored with ``global_mode``, which scales with one
     α at unchanged limb stress). ``modes``: harmonic basis size (``None``: the library's default).
-    ``posture``: ``keep`` / ``upright`` / ``free``, or ``None`` for the ruleset's own. ``up``: the
-    body's up direction, detected when ``None``. ``progress`` is told of steps, bases and trials
+    ``posture``: ``keep`` / ``upright`` / ``free``, or ``None`` for the ruleset's own. ``up``,
+    ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``. ``progress`` is told of steps, bases and trials
     and may raise to cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
@@ -74,7 +93,7 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
         if posture:
             rules = replace(rules, solver=replace(rules.solver, posture=posture))
         scaling = pipeline.RulesetScaling(rules, mass_ratio)
-    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, up=up, modes=modes,
+    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, up=up, forward=forward, modes=modes,
                        progress=progress)
     report = run.report()
     if not run.converged:

@@ -46,6 +46,13 @@ UP_ITEMS = [
     ("Z", "World +Z", "the animal stands on the XY plane, back towards +Z (Blender's convention)"),
     ("AUTO", "Detect", "let allorules find the body's up direction from its shape"),
 ]
+FORWARD_ITEMS = [
+    ("AUTO", "Detect", "let allorules tell the head from the tail from the animal's shape"),
+    ("-Y", "World -Y", "the animal faces -Y, towards Blender's front view"),
+    ("+Y", "World +Y", "the animal faces +Y"),
+    ("+X", "World +X", "the animal faces +X"),
+    ("-X", "World -X", "the animal faces -X"),
+]
 GAP = 0.25   # space left between copies, as a share of the original's extent in that direction
 
 
@@ -58,11 +65,12 @@ class Settings:
     posture: str | None
     global_mode: bool
     up: np.ndarray | None
+    forward: np.ndarray | None
 
     def scale(self, source: SourceMesh, ratio: float, progress=None):
         return adapter.scale_arrays(source.vertices, source.triangles, ruleset=self.ruleset, mass_ratio=ratio,
                                     modes=self.modes, posture=self.posture, global_mode=self.global_mode,
-                                    up=self.up, progress=progress)
+                                    up=self.up, forward=self.forward, progress=progress)
 
 
 def copy_name(source_name: str, ratio: float) -> str:
@@ -90,6 +98,8 @@ class _RunsAllorules:
                               description="global allometric scaling: one exponent for the whole body, limb stress "
                                           "kept (the ruleset is not used)")
     up: EnumProperty(name="Up", items=UP_ITEMS, default="Z", description="which way is up for the animal")
+    forward: EnumProperty(name="Forward", items=FORWARD_ITEMS, default="AUTO",
+                          description="which way the animal faces (tail to head); set it when allorules cannot tell")
 
     @classmethod
     def poll(cls, context):
@@ -115,7 +125,9 @@ class _RunsAllorules:
         settings = Settings(ruleset=ruleset, modes=self.modes or None,
                             posture=None if self.posture == "RULESET" else self.posture,
                             global_mode=self.global_mode,
-                            up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None)
+                            up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
+                            forward=None if adapter.FORWARD_DIRECTIONS[self.forward] is None
+                            else np.array(adapter.FORWARD_DIRECTIONS[self.forward]))
         for ratio in self.ratios():
             adapter.check_settings(ruleset=settings.ruleset, mass_ratio=ratio, modes=settings.modes,
                                    posture=settings.posture, global_mode=settings.global_mode)
@@ -135,7 +147,7 @@ class _RunsAllorules:
         if isinstance(error, Cancelled):
             self.report({'WARNING'}, "allorules: cancelled; nothing was added")
         elif isinstance(error, AllorulesError):
-            self.report({'ERROR'}, _one_line(error))
+            self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))
         else:   # a bug: the traceback goes to the console, the user gets one line
             log.error("allorules failed", exc_info=(type(error), error, error.__traceback__))
             self.report({'ERROR'}, f"allorules failed unexpectedly ({type(error).__name__}: {_one_line(error)}); "

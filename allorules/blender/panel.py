@@ -19,7 +19,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from allorules.blender.operators import POSTURE_ITEMS, UP_ITEMS
+from allorules.blender.operators import FORWARD_ITEMS, POSTURE_ITEMS, UP_ITEMS
 from allorules.blender.results import RunSummary
 
 FILE = "__FILE__"
@@ -51,6 +51,7 @@ class AllorulesSettings(bpy.types.PropertyGroup):
     global_mode: BoolProperty(name="Global scaling", default=False,
                               description="one exponent for the whole body at unchanged limb stress (no ruleset)")
     up: EnumProperty(name="Up", items=UP_ITEMS, default="Z")
+    forward: EnumProperty(name="Forward", items=FORWARD_ITEMS, default="AUTO")
     last_result: StringProperty(name="Last result", default="", options={'HIDDEN'})
 
     def chosen_ruleset(self) -> str:
@@ -64,6 +65,7 @@ def _fill(operator, settings: AllorulesSettings) -> None:
     operator.posture = settings.posture
     operator.global_mode = settings.global_mode
     operator.up = settings.up
+    operator.forward = settings.forward
 
 
 def _wrapped(layout, text: str, width: int = 44, icon: str = 'NONE') -> None:
@@ -97,6 +99,7 @@ class VIEW3D_PT_allorules(bpy.types.Panel):
         row.operator("allorules.mass_ratio_times", text="x2").factor = 2.0
         column.prop(settings, "posture")
         column.prop(settings, "up")
+        column.prop(settings, "forward")
         column.prop(settings, "modes")
         column.separator()
         _fill(column.operator("allorules.scale", text="Scale", icon='FULLSCREEN_ENTER'), settings)
