@@ -65,8 +65,8 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     ``ruleset``: a ruleset name or YAML path (ignored with ``global_mode``, which scales with one
     α at unchanged limb stress). ``modes``: harmonic basis size (``None``: the library's default).
     ``posture``: ``keep`` / ``upright`` / ``free``, or ``None`` for the ruleset's own. ``up``,
-    ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``. ``progress`` is told of steps, bases and trials
-    and may raise to cancel the run.
+    ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``.
+    ``progress`` is told of steps, bases and trials and may raise to cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
     ``allorules scale --report`` writes it, plus ``up`` and ``forward``: the body's frame in the
@@ -93,8 +93,8 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
         if posture:
             rules = replace(rules, solver=replace(rules.solver, posture=posture))
         scaling = pipeline.RulesetScaling(rules, mass_ratio)
-    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, up=up, forward=forward, modes=modes,
-                       progress=progress)
+    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, up=up,
+                       forward=forward, modes=modes, progress=progress)
     report = run.report()
     if not run.converged:
         raise ScalingError(f"{run.missed()}; nothing was added", closest=run.result)

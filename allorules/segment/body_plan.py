@@ -86,7 +86,8 @@ PRESENCE_FAINT = 0.04          # an end's most prominent tip at or below this: n
 PRESENCE_FULL = 0.16           # ... at or above this: something surely does (the horse 387's stub of a
                                # tail is 0.075 as it comes, 0.084 Loop-subdivided: a step there refused it)
 
-BY_HAND = "a labels file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a merge file"
+BY_HAND = ("a labels file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a "
+           "merge file")
 SETTLE = f"settle it with --forward DIR (tail to head), {BY_HAND}"   # head or tail (--forward decides it)
 
 
