@@ -10,9 +10,10 @@ and turned at random, as a user's posed file would come, and labelled again: the
 surface whose label agrees with the standing one, the hand marks' verdict (nose on the head, each
 foot on a leg; head and tail swapped?), or the refusal; a refusal is then settled as it says, with
 the directions it names (``--forward``, or ``--up`` and ``--forward``) given from the standing
-frame turned with the mesh, as a user who knows the file's axes gives them. With ``--scale``, each posed animal is then
-scaled as ``allorules scale`` would (its own labels, the working mesh, ``quadruped``): converged,
-the worst rule's miss, the trunk's length exponent, folded faces, seconds. Animals whose legs touch
+frame turned with the mesh, as a user who knows the file's axes gives them. With ``--scale``,
+each posed animal is then scaled as ``allorules scale`` would (its own labels, the working mesh,
+``quadruped``): converged, the worst rule's miss, the trunk's length exponent, folded faces,
+seconds. Animals whose legs touch
 (one piece for a pair) cannot be posed and are listed as such.
 """
 from __future__ import annotations

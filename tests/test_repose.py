@@ -72,6 +72,19 @@ POSED = [("horse.obj", "gallop"), ("horse.obj", "lie"), ("lion.obj", "walk"), ("
          ("wolf.obj", "graze"), ("lion.obj", "lie")]
 
 
+def _posed_real(name: str, pose: str):
+    """A shared animal as prepared, its standing labels, the random turn of (name, pose), and the
+    animal put into the pose from those labels and turned by it (skips without shared/)."""
+    if not SHARED.is_dir():
+        pytest.skip("../shared/meshes is not present")
+    from allorules.mesh.repair import prepare_mesh
+
+    prepared = prepare_mesh(SHARED / "psb-fourleg" / name if name.endswith(".off") else SHARED / name)
+    standing = label_quadruped(Body(prepared.vertices, prepared.faces))
+    rotation = random_rotation(sum(map(ord, name + pose)))
+    return prepared, standing, rotation, Body(repose(standing, POSES[pose]) @ rotation.T, prepared.faces)
+
+
 @pytest.mark.shared_meshes
 @pytest.mark.slow
 @pytest.mark.parametrize("name, pose", POSED)
@@ -80,17 +93,10 @@ def test_real_animals_posed_are_labelled_right_never_swapped(name, pose):
     labels, turned at random: labelled right against the hand marks (its nose the head, each foot
     a leg's), or refused with a way to settle it. The wolf's upper jaw, its mouth open, ends a tube
     3.3 of its radii long when its head turns: it is no trunk (TRUNK_LENGTH)."""
-    if not SHARED.is_dir():
-        pytest.skip("../shared/meshes is not present")
-    from allorules.mesh.repair import prepare_mesh
-
-    prepared = prepare_mesh(SHARED / "psb-fourleg" / name if name.endswith(".off") else SHARED / name)
+    prepared, _, _, posed = _posed_real(name, pose)
     marks = label_check.read_hand_marks(HAND_MARKS)[name].on_body(prepared.source_vertex_index)
-    standing = label_quadruped(Body(prepared.vertices, prepared.faces))
-    rotation = random_rotation(sum(map(ord, name + pose)))
-    posed = repose(standing, POSES[pose]) @ rotation.T
     try:
-        labelled = label_quadruped(Body(posed, prepared.faces))
+        labelled = label_quadruped(posed)
     except SegmentationError as error:
         assert "\n" not in str(error) and "--forward" in str(error), str(error)
         return
@@ -111,15 +117,10 @@ KEPT = 0.7
 @pytest.mark.slow
 @pytest.mark.parametrize("name, pose", HEAD_TURNED)
 def test_a_turned_head_keeps_its_head_and_neck(name, pose):
-    if not SHARED.is_dir():
-        pytest.skip("../shared/meshes is not present")
     from allorules.mesh.geometry import vertex_areas
-    from allorules.mesh.repair import prepare_mesh
 
-    prepared = prepare_mesh(SHARED / name)
-    standing = label_quadruped(Body(prepared.vertices, prepared.faces))
-    posed = repose(standing, POSES[pose]) @ random_rotation(sum(map(ord, name + pose))).T
-    labelled = label_quadruped(Body(posed, prepared.faces))
+    prepared, standing, _, posed = _posed_real(name, pose)
+    labelled = label_quadruped(posed)
     area = vertex_areas(prepared.vertices, prepared.faces)
     for region in ("head", "neck"):
         before = standing.region_mask(region)
@@ -137,15 +138,8 @@ def test_a_turned_head_keeps_its_head_and_neck(name, pose):
 @pytest.mark.slow
 @pytest.mark.parametrize("name, pose", [("385.off", "lie"), ("386.off", "gallop")])
 def test_feet_in_doubt_are_settled_with_the_bodys_up_and_forward(name, pose):
-    if not SHARED.is_dir():
-        pytest.skip("../shared/meshes is not present")
-    from allorules.mesh.repair import prepare_mesh
-
-    prepared = prepare_mesh(SHARED / "psb-fourleg" / name)
+    prepared, standing, rotation, posed = _posed_real(name, pose)
     marks = label_check.read_hand_marks(HAND_MARKS)[name].on_body(prepared.source_vertex_index)
-    standing = label_quadruped(Body(prepared.vertices, prepared.faces))
-    rotation = random_rotation(sum(map(ord, name + pose)))
-    posed = Body(repose(standing, POSES[pose]) @ rotation.T, prepared.faces)
     with pytest.raises(SegmentationError, match="feet") as refused:
         label_quadruped(posed)
     assert "--up DIR and --forward DIR" in str(refused.value)

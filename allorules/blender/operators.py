@@ -122,12 +122,12 @@ class _RunsAllorules:
     # --- shared ---------------------------------------------------------------------------------
     def settings(self) -> Settings:
         ruleset = bpy.path.abspath(self.ruleset) if self.ruleset.startswith("//") else self.ruleset
+        forward = adapter.FORWARD_DIRECTIONS[self.forward]
         settings = Settings(ruleset=ruleset, modes=self.modes or None,
                             posture=None if self.posture == "RULESET" else self.posture,
                             global_mode=self.global_mode,
                             up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
-                            forward=None if adapter.FORWARD_DIRECTIONS[self.forward] is None
-                            else np.array(adapter.FORWARD_DIRECTIONS[self.forward]))
+                            forward=None if forward is None else np.array(forward))
         for ratio in self.ratios():
             adapter.check_settings(ruleset=settings.ruleset, mass_ratio=ratio, modes=settings.modes,
                                    posture=settings.posture, global_mode=settings.global_mode)

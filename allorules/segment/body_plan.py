@@ -161,7 +161,9 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
     n = len(tips.vertices)
     hypotheses = []
     centroid = np.average(vertices, axis=0, weights=mass)
-    height = float(np.ptp(vertices @ up)) if up is not None else 1.0
+    if side is not None:     # each tip's height above the body's centre (of its height) and offset from its midplane
+        above = np.clip((vertices[tips.vertices] - centroid) @ up / np.ptp(vertices @ up) / ABOVE, 0.0, 1.0)
+        offset = (vertices[tips.vertices] - centroid) @ side
     for four in itertools.combinations(range(n), 4):
         a, b, c, e = four
         pairings = [((a, b), (c, e)), ((a, c), (b, e)), ((a, e), (b, c))]
@@ -201,12 +203,10 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
             # Given the body's own frame (up alone may be the world's: Blender gives +Z, and a rearing
             # animal's fore feet rise above its centre there), feet are below the body's centre in any
             # pose; a donkey lying with its head down has its ears above it, mirrored like feet.
-            above = (vertices[tips.vertices[[p, q, r, s]]] - centroid) @ up / height
-            terms["above"] = float(np.clip(above / ABOVE, 0.0, 1.0).sum())
+            terms["above"] = float(above[list(four)].sum())
             # The left and right feet of a pair stand on either side of the body's midplane in any
             # pose (one reaching forward and one back, the animal lying on its side): a donkey lying
             # with its head down has its nose on the midplane and an ear beside it (0.11: costs 0.39).
-            offset = (vertices[tips.vertices] - centroid) @ side
             terms["sides"] = SIDES * sum(max(0.0, 0.5 - _mirrored(offset[x], offset[y])) for x, y in ((p, q), (r, s)))
         cost = sum(terms.values())
         hypotheses.append(_Hypothesis(((p, q), (r, s)), cost, terms, legs, spine))
@@ -351,9 +351,8 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
     pointing = np.array([_pointing(vertices, faces, extremities.distance[int(t)], level, int(t))
                          for t, level in zip(extremities.vertices[index], levels)]).reshape(-1, 3)
     tips = _Tips(extremities.vertices[index], extremities.persistence[index], extremities.agd[index], flatness, pointing)
-    side = None
-    if up is not None and forward is not None and np.linalg.norm(np.cross(forward, up)) > 0.1:
-        side = np.cross(forward, up) / np.linalg.norm(np.cross(forward, up))
+    side = None if up is None or forward is None else np.cross(forward, up)
+    side = side / np.linalg.norm(side) if side is not None and np.linalg.norm(side) > 0.1 else None
     hypotheses = _feet_hypotheses(tips, d, vertices, mass, up, side)
     best = hypotheses[0]
     margin = hypotheses[1].cost - best.cost if len(hypotheses) > 1 else np.inf
