@@ -23,13 +23,16 @@ def world_positions(obj, evaluated: bool = False) -> np.ndarray:
     return local.reshape(-1, 3).astype(float) @ matrix[:3, :3].T + matrix[:3, 3]
 
 
-def quadruped_object(name: str, vertices: int = 2000, modifier: bool = True):
-    """The generated horse as a Blender object: +Y up in its mesh, turned to stand on Z by its
-    object rotation, scaled and moved; UV-mapped, two materials, smooth shaded, optionally with
-    a Displace modifier (so the evaluated mesh differs from the mesh data)."""
+def quadruped_object(name: str, vertices: int = 2000, modifier: bool = True, pose: str | None = None):
+    """The generated horse (in ``pose``, standing by default) as a Blender object: +Y up in its
+    mesh, turned to stand on Z by its object rotation, scaled and moved; UV-mapped, two materials,
+    smooth shaded, optionally with a Displace modifier (so the evaluated mesh differs from the mesh
+    data). The generator's truth is the object's ``truth`` property (JSON: region names, labels)."""
+    import json
+
     from allorules.mesh.quadruped import generate_quadruped
 
-    horse = generate_quadruped("horse", vertices)
+    horse = generate_quadruped("horse", vertices, pose=pose)
     mesh = bpy.data.meshes.new(f"{name}Mesh")
     mesh.from_pydata(horse.vertices.tolist(), [], horse.faces.tolist())
     mesh.update()
@@ -43,6 +46,7 @@ def quadruped_object(name: str, vertices: int = 2000, modifier: bool = True):
     mesh.polygons.foreach_set("material_index", (centres < np.quantile(centres, 0.1)).astype(np.int32))
     mesh.shade_smooth()
     obj = bpy.data.objects.new(name, mesh)
+    obj["truth"] = json.dumps({"regions": list(horse.region_names), "labels": horse.labels.tolist()})
     bpy.context.scene.collection.objects.link(obj)
     obj.rotation_euler = (math.pi / 2, 0.0, 0.4)
     obj.scale = (2.0, 2.0, 2.0)

@@ -88,6 +88,40 @@ def test_a_sitting_animal_refused_for_its_feet_is_scaled_once_forward_is_set():
     assert report["mass_ratio"] == pytest.approx(2.0, rel=0.01) and new.shape == vertices.shape
 
 
+def test_regions_painted_where_the_labeller_refuses_are_used_for_the_run():
+    """The same sitting horse, up given, forward not: Label Regions is refused for its feet, and the
+    refusal names the region vertex groups to paint (not the command line's labels file); the
+    regions painted (the generator's truth, as an artist would paint them) are what the run uses,
+    including the vertices in no group; a standing animal's regions come out as the truth's."""
+    from allorules.mesh.quadruped import generate_quadruped
+
+    horse = generate_quadruped("horse", 2000, pose="sit")
+    turn = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])   # +X forward → −Y, +Y up → +Z
+    vertices, up = horse.vertices @ turn.T, np.array([0.0, 0.0, 1.0])
+    with pytest.raises(AllorulesError, match="feet") as refused:
+        adapter.label_arrays(vertices, horse.faces, up=up)
+    said = adapter.in_panel_terms(str(refused.value))
+    assert "or vertex groups region:head, region:neck" in said and "Regions set to Vertex groups" in said
+    assert "--segmentation" not in said and "merge file" not in said
+    painted = horse.labels.copy()
+    painted[::40] = -1                                   # a few vertices the brush missed
+    new, report = adapter.scale_arrays(vertices, horse.faces, mass_ratio=2.0, modes=40, global_mode=True, up=up,
+                                       regions=(painted, horse.region_names))
+    assert report["converged"] and report["labels"]["source"] == "vertex groups"
+    assert report["mass_ratio"] == pytest.approx(2.0, rel=0.01) and new.shape == vertices.shape
+    assert np.dot(report["forward"], adapter.FORWARD_DIRECTIONS["-Y"]) > 0.9      # read off the painted regions
+    with pytest.raises(AllorulesError, match="labels for a mesh of"):
+        adapter.scale_arrays(vertices, horse.faces, mass_ratio=2.0, modes=40, global_mode=True,
+                             regions=(painted[:-1], horse.region_names))
+
+    standing = generate_quadruped("horse", 2000)
+    labels, names, found = adapter.label_arrays(standing.vertices, standing.faces)
+    truth = np.asarray(standing.region_names)[standing.labels]
+    assert labels.shape == (len(standing.vertices),) and (labels >= 0).all()
+    assert np.mean(np.asarray(names)[labels] == truth) > 0.9
+    assert found["confidence"]["head-tail"] > 0.6 and np.dot(found["up"], [0.0, 1.0, 0.0]) > 0.99
+
+
 def test_bad_settings_are_refused_before_any_work(standing_z_up):
     vertices, faces, _ = standing_z_up
     with pytest.raises(RulesetError, match="unknown ruleset 'no-such-set'"):

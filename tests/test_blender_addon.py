@@ -167,6 +167,7 @@ def test_the_panel_shows_the_settings_and_the_last_run(scaled):
     assert ("prop", "ruleset") in drawn and ("prop", "mass_ratio") in drawn
     assert ("operator", "allorules.scale") in drawn and ("operator", "allorules.gallery") in drawn
     assert drawn.count(("operator", "allorules.mass_ratio_times")) == 2
+    assert ("prop", "regions") in drawn and ("operator", "allorules.label_regions") in drawn
     labels = [entry[1] for entry in drawn if entry[0] == "label"]
     assert any("Horse_x2" in text for text in labels)
     for rule in ("foreleg-length", "hindleg-length", "chest-girth", "head-mass", "abdomen-mass"):
@@ -189,6 +190,55 @@ def test_gallery_puts_minified_original_magnified_in_a_row(blender):
     for obj in (small, large):
         assert world_positions(obj)[:, 2].min() == pytest.approx(before[:, 2].min(), abs=1e-5 * np.ptp(before))
     assert np.ptp(along["small"]) < np.ptp(along["original"]) < np.ptp(along["large"])
+
+
+def _groups(obj) -> dict[str, np.ndarray]:
+    """Each vertex group of ``obj``: the indices of its vertices."""
+    members: dict[str, list[int]] = {group.name: [] for group in obj.vertex_groups}
+    names = {group.index: group.name for group in obj.vertex_groups}
+    for vertex in obj.data.vertices:
+        for element in vertex.groups:
+            members[names[element.group]].append(vertex.index)
+    return {name: np.array(indices) for name, indices in members.items()}
+
+
+def test_label_regions_adds_vertex_groups_that_a_run_then_uses(blender):
+    """Label Regions on a standing horse: one group per region, as the generator's truth has them
+    (modifier and object transform in the way); asked again, it refuses to replace them. A sitting
+    horse (Up alone) is refused, the refusal naming the groups to paint; painted by hand (here: the
+    truth, and a group of bone weights beside them that is not a region), Scale with Regions set to
+    Vertex groups runs on them."""
+    standing = quadruped_object("Standing")
+    assert bpy.ops.allorules.label_regions(up="Z") == {'FINISHED'}
+    truth = json.loads(standing["truth"])
+    wanted = np.asarray(truth["regions"])[truth["labels"]]
+    groups = _groups(standing)
+    assert {"region:head", "region:neck", "region:chest", "region:abdomen", "region:forelimbs",
+            "region:hindlimbs"} <= set(groups)
+    found = np.full(len(wanted), "", dtype=object)
+    for name, members in groups.items():
+        found[members] = name.removeprefix("region:")
+    assert np.mean(found == wanted) > 0.9
+    with pytest.raises(RuntimeError, match="already has region vertex groups"):
+        bpy.ops.allorules.label_regions(up="Z")
+
+    sitting = quadruped_object("Sitting", pose="sit")
+    with pytest.raises(RuntimeError) as refused:
+        bpy.ops.allorules.label_regions(up="Z")
+    assert "region:head" in str(refused.value) and "and Regions set to Vertex groups" in str(refused.value)
+    assert len(sitting.vertex_groups) == 0
+    with pytest.raises(RuntimeError, match="no vertex groups named region:head"):
+        bpy.ops.allorules.scale(mass_ratio=1.5, global_mode=False, regions="GROUPS", modes=40)
+    truth = json.loads(sitting["truth"])
+    labels = np.asarray(truth["labels"])
+    for index, name in enumerate(truth["regions"]):
+        sitting.vertex_groups.new(name=f"region:{name}").add(np.flatnonzero(labels == index).tolist(), 1.0, 'REPLACE')
+    sitting.vertex_groups.new(name="head").add(np.flatnonzero(labels == 5).tolist(), 0.5, 'REPLACE')   # a bone's
+    objects = set(bpy.data.objects)
+    assert bpy.ops.allorules.scale(mass_ratio=1.5, global_mode=True, regions="GROUPS", modes=40) == {'FINISHED'}
+    (scaled,) = set(bpy.data.objects) - objects
+    summary = json.loads(scaled["allorules"])
+    assert summary["mass_ratio"] == pytest.approx(1.5, rel=0.01)
 
 
 # --- the extension, installed from its file -------------------------------------------------------

@@ -392,3 +392,36 @@ def test_a_run_without_regions_to_scale_says_what_to_do(tmp_path):
     with pytest.raises(SegmentationError):
         pipeline.run(mesh, pipeline.GlobalScaling(1.1), modes=12)
 
+
+
+def test_regions_go_to_every_input_vertex_and_come_back_from_them():
+    """:func:`pipeline.input_regions` gives every vertex of the input as it came a region (split
+    seam vertices their twin's, an eye shell the head's, as the body vertex it sits by), and
+    :class:`pipeline.VertexRegions` given back label the prepared body as they were."""
+    import trimesh
+
+    horse = generate_quadruped("horse", 2000)
+    faces = horse.faces.copy()
+    split = faces[:30].ravel().copy()                  # a UV seam: these corners get vertices of their own
+    faces[:30] = (len(horse.vertices) + np.arange(len(split))).reshape(-1, 3)
+    vertices = np.vstack([horse.vertices, horse.vertices[split]])
+    nose = horse.vertices[np.argmax(horse.vertices[:, 0])]
+    eye = trimesh.creation.icosphere(1, radius=0.01)
+    vertices_eye = eye.vertices + nose - [0.03, 0.0, 0.0]
+    mesh = trimesh.Trimesh(np.vstack([vertices, vertices_eye]), np.vstack([faces, eye.faces + len(vertices)]),
+                           process=False)
+
+    regions, body = pipeline.input_regions(mesh)
+    assert regions.labels.shape == (len(mesh.vertices),)
+    names = np.asarray(regions.region_names)
+    np.testing.assert_array_equal(regions.labels[len(horse.vertices):len(vertices)], regions.labels[split])
+    assert set(names[regions.labels[len(vertices):]]) == {"head"}
+    assert np.mean(names[regions.labels[:len(horse.vertices)]] == np.asarray(horse.region_names)[horse.labels]) > 0.9
+
+    prepared = pipeline.prepare(mesh)
+    given = regions.on(prepared)
+    np.testing.assert_array_equal(prepared.source_labels(given.labels)[:len(vertices)], regions.labels[:len(vertices)])
+    with pytest.raises(SegmentationError, match="labels for a mesh of"):
+        pipeline.VertexRegions(regions.labels[1:], regions.region_names, "vertex groups").on(prepared)
+    with pytest.raises(SegmentationError, match="not a region index"):
+        pipeline.VertexRegions(regions.labels + 10, regions.region_names, "vertex groups").on(prepared)

@@ -7,17 +7,22 @@ mesh and keep its quads, UVs, materials and shading. No ``bpy`` here: the adapte
 used without Blender.
 
 It is one call to the run pipeline (:mod:`allorules.runs.pipeline`), the same every front end
-uses (which also stands the output where the input stood).
+uses (which also stands the output where the input stood). :func:`label_arrays` is the pipeline's
+labelling alone: the regions of every vertex, which the add-on writes as vertex groups named
+``region:<name>`` (:data:`GROUP_PREFIX`) for the artist to check and paint; :func:`scale_arrays`
+takes them back (``regions``) instead of labelling the animal itself.
 """
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from allorules.errors import AllorulesError, MeshError, ScalingError
 from allorules.runs.progress import RunProgress
+from allorules.segment.body_plan import BY_HAND
+from allorules.segment.regions import QUADRUPED_REGIONS
 
 POSTURES = ("keep", "upright", "free")
 
@@ -26,11 +31,17 @@ POSTURES = ("keep", "upright", "free")
 FORWARD_DIRECTIONS = {"AUTO": None, "-Y": (0.0, -1.0, 0.0), "+Y": (0.0, 1.0, 0.0), "+X": (1.0, 0.0, 0.0),
                       "-X": (-1.0, 0.0, 0.0)}
 
-# The command line's direction options as the panel names them: a refusal says how to settle it
-# (the labeller: "settle it with --up DIR and --forward DIR ..."), and in Blender that is the panel.
+# The vertex groups that carry regions in Blender: "region:head", "region:forelimbs", ... (other
+# groups, an armature's bone weights among them, are not regions).
+GROUP_PREFIX = "region:"
+REGION_GROUPS = ", ".join(GROUP_PREFIX + name for name in QUADRUPED_REGIONS)
+
+# The command line's options as the panel names them: a refusal says how to settle it (the labeller:
+# "settle it with --up DIR and --forward DIR ..., or a labels file ..."), and in Blender that is the panel.
 _PANEL_TERMS = (("--up DIR and --forward DIR (the body's feet-to-back and tail-to-head)", "the Up and Forward settings"),
                 ("--forward DIR (tail to head)", "the Forward setting"),
-                ("--up/--forward", "the Up and Forward settings"))
+                ("--up/--forward", "the Up and Forward settings"),
+                (BY_HAND, f"or vertex groups {REGION_GROUPS} painted by hand and Regions set to Vertex groups"))
 
 
 def in_panel_terms(message: str) -> str:
@@ -56,9 +67,39 @@ def check_settings(*, ruleset: str, mass_ratio: float, modes: int | None, postur
         load_ruleset(ruleset)
 
 
+def _arrays(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
+        raise MeshError(f"expected n×3 vertices and m×3 triangles, got {vertices.shape} and {faces.shape}")
+    return vertices, faces
+
+
+def label_arrays(vertices: np.ndarray, faces: np.ndarray, *, up: np.ndarray | None = None,
+                 forward: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...], dict[str, Any]]:
+    """The regions of the animal ``vertices`` / ``faces`` as a run finds them (every one the labeller
+    finds: tail, ears, horns too): a region index for every input vertex (-1: none), the region
+    names, and a report (``up``, ``forward``, the labelling's ``source`` and ``confidence``).
+    Raises :class:`AllorulesError` with the labeller's one-line refusal."""
+    import trimesh
+
+    from allorules.runs import pipeline
+
+    vertices, faces = _arrays(vertices, faces)
+    regions, body = pipeline.input_regions(trimesh.Trimesh(vertices, faces, process=False), up=up, forward=forward)
+    report: dict[str, Any] = {"source": regions.source}
+    if body.frame is not None:
+        report["up"] = np.asarray(body.frame.up, dtype=float).tolist()
+        report["forward"] = np.asarray(body.frame.forward, dtype=float).tolist()
+    if body.labelling is not None:
+        report["confidence"] = {key: float(value) for key, value in body.labelling.confidence.items()}
+    return regions.labels, regions.region_names, report
+
+
 def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "quadruped", mass_ratio: float,
                  modes: int | None = None, posture: str | None = None, global_mode: bool = False,
                  up: np.ndarray | None = None, forward: np.ndarray | None = None,
+                 regions: tuple[np.ndarray, Sequence[str]] | None = None,
                  progress: RunProgress | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Scale the quadruped ``vertices`` (n×3) / ``faces`` (m×3 triangles) by the body-mass ratio.
 
@@ -66,7 +107,9 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     α at unchanged limb stress). ``modes``: harmonic basis size (``None``: the library's default).
     ``posture``: ``keep`` / ``upright`` / ``free``, or ``None`` for the ruleset's own. ``up``,
     ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``.
-    ``progress`` is told of steps, bases and trials and may raise to cancel the run.
+    ``regions``: (a region index for every input vertex, -1 for none; the region names), the
+    regions painted as vertex groups, used instead of labelling the animal (``up``/``forward``
+    then only place the output). ``progress`` is told of steps, bases and trials and may raise to cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
     ``allorules scale --report`` writes it, plus ``up`` and ``forward``: the body's frame in the
@@ -79,11 +122,9 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     from allorules.plugins.registry import registry_for
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
+    from allorules.solve.transform import anatomical_axes
 
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
-        raise MeshError(f"expected n×3 vertices and m×3 triangles, got {vertices.shape} and {faces.shape}")
+    vertices, faces = _arrays(vertices, faces)
     check_settings(ruleset=ruleset, mass_ratio=mass_ratio, modes=modes, posture=posture, global_mode=global_mode)
     registry = registry_for(None)
     if global_mode:
@@ -93,14 +134,15 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
         if posture:
             rules = replace(rules, solver=replace(rules.solver, posture=posture))
         scaling = pipeline.RulesetScaling(rules, mass_ratio)
-    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, up=up,
-                       forward=forward, modes=modes, progress=progress)
+    labels = None if regions is None else pipeline.VertexRegions(np.asarray(regions[0]), tuple(regions[1]),
+                                                                  "vertex groups")
+    run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, labels=labels,
+                       up=up, forward=forward, modes=modes, progress=progress)
     report = run.report()
     if not run.converged:
         raise ScalingError(f"{run.missed()}; nothing was added", closest=run.result)
     new_vertices = run.output_vertices()      # placed by the pipeline: the feet where the input's were
-    body = run.body
-    frame_up = np.asarray(body.frame.up, dtype=float)
-    report["up"] = frame_up.tolist()
-    report["forward"] = np.asarray(body.frame.forward, dtype=float).tolist()
+    forward_axis, up_axis, _ = anatomical_axes(run.body)     # the labeller's frame, else the regions'
+    report["up"] = up_axis.tolist()
+    report["forward"] = forward_axis.tolist()
     return new_vertices, report

@@ -7,7 +7,10 @@ mesh's triangles (``loop_triangles``); it returns a new world position for every
 vertex. The new object's mesh is a copy of the evaluated mesh (``new_from_object``), so quads,
 n-gons, UV layers, materials, smooth/flat shading and every other attribute stay; only the
 positions are written. The new object keeps the original's world matrix, moved sideways, and
-has no modifiers (they are already applied). The original is never written to.
+has no modifiers (they are already applied). The original is never written to, except by the
+Label Regions operator, which is asked to: it adds the vertex groups ``region:<name>``
+(:func:`write_regions`). :func:`read_regions` reads them back, through the modifiers, from the
+evaluated mesh.
 """
 from __future__ import annotations
 
@@ -17,7 +20,8 @@ import bpy
 import mathutils
 import numpy as np
 
-from allorules.errors import AllorulesError, MeshError
+from allorules.blender.adapter import GROUP_PREFIX, REGION_GROUPS
+from allorules.errors import AllorulesError, MeshError, SegmentationError
 
 
 @dataclass
@@ -31,10 +35,12 @@ class SourceMesh:
     copies: list = field(default_factory=list)   # bpy.types.Mesh, not yet used by any object
     collections: list = field(default_factory=list)
     object_materials: dict = field(default_factory=dict)   # slot index -> material, for slots linked to the object
+    regions: tuple[np.ndarray, tuple[str, ...]] | None = None   # from the vertex groups, when asked (read_regions)
 
 
-def read_source(context, obj, copies: int = 1) -> SourceMesh:
-    """The evaluated, world-space mesh of ``obj`` and ``copies`` copies of its mesh data."""
+def read_source(context, obj, copies: int = 1, regions: bool = False) -> SourceMesh:
+    """The evaluated, world-space mesh of ``obj`` and ``copies`` copies of its mesh data; with
+    ``regions``, the regions of its ``region:`` vertex groups too (:func:`read_regions`)."""
     if obj is None or obj.type != 'MESH':
         raise MeshError("select a mesh object (the animal) and make it active")
     depsgraph = context.evaluated_depsgraph_get()
@@ -55,6 +61,7 @@ def read_source(context, obj, copies: int = 1) -> SourceMesh:
         triangles = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
         mesh.loop_triangles.foreach_get("vertices", triangles)
         world = local @ matrix[:3, :3].T + matrix[:3, 3]
+        painted = read_regions(obj, mesh) if regions else None
         for _ in range(copies - 1):
             made.append(mesh.copy())
     except BaseException:
@@ -63,7 +70,54 @@ def read_source(context, obj, copies: int = 1) -> SourceMesh:
         raise
     object_materials = {index: slot.material for index, slot in enumerate(obj.material_slots) if slot.link == 'OBJECT'}
     return SourceMesh(obj.name, matrix, world, triangles.reshape(-1, 3).astype(np.int64), made,
-                      list(obj.users_collection), object_materials)
+                      list(obj.users_collection), object_materials, painted)
+
+
+def region_groups(obj) -> dict[int, str]:
+    """``obj``'s vertex groups that carry a region: group index -> region name."""
+    return {group.index: group.name[len(GROUP_PREFIX):] for group in obj.vertex_groups
+            if group.name.startswith(GROUP_PREFIX) and len(group.name) > len(GROUP_PREFIX)}
+
+
+def read_regions(obj, mesh) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The region of every vertex of ``mesh`` (``obj``'s evaluated mesh, whose vertex weights came
+    through the modifiers): the ``region:`` group it weighs most in, -1 where none."""
+    groups = region_groups(obj)
+    if not groups:
+        raise SegmentationError(f"{obj.name} has no vertex groups named {REGION_GROUPS}; make them with "
+                                "Label Regions (or paint them), or set Regions to Detect")
+    names = tuple(groups.values())
+    column = {index: names.index(name) for index, name in groups.items()}
+    labels = np.full(len(mesh.vertices), -1, dtype=np.int64)
+    for vertex in mesh.vertices:
+        best = 0.0
+        for element in vertex.groups:
+            if element.group in column and element.weight > best:
+                best, labels[vertex.index] = element.weight, column[element.group]
+    if (labels < 0).all():
+        raise SegmentationError(f"{obj.name}: its region vertex groups hold no vertex; paint them, or set Regions "
+                                "to Detect")
+    return labels, names
+
+
+def write_regions(obj, labels: np.ndarray, names) -> list[str]:
+    """Add a vertex group ``region:<name>`` (weight 1) to ``obj`` for each region with vertices;
+    ``labels`` holds one region index per vertex of ``obj``'s own mesh. Refused where the object
+    already has region groups (someone may have painted them). Returns the groups' names."""
+    if region_groups(obj):
+        raise SegmentationError(f"{obj.name} already has region vertex groups ({', '.join(sorted(region_groups(obj).values()))}); "
+                                "delete them to label it again")
+    if len(labels) != len(obj.data.vertices):
+        raise MeshError(f"{obj.name}: its modifiers change its vertices ({len(obj.data.vertices)} → {len(labels)}); "
+                        "label a copy with the modifiers applied, or paint the region groups by hand")
+    added = []
+    for index, name in enumerate(names):
+        members = np.flatnonzero(np.asarray(labels) == index)
+        if len(members):
+            group = obj.vertex_groups.new(name=GROUP_PREFIX + name)
+            group.add(members.tolist(), 1.0, 'REPLACE')
+            added.append(group.name)
+    return added
 
 
 def discard(source: SourceMesh) -> None:

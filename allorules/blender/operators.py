@@ -1,4 +1,5 @@
-"""The add-on's operators: ``allorules.scale``, ``allorules.gallery`` and the panel's x0.5 / x2.
+"""The add-on's operators: ``allorules.scale``, ``allorules.gallery``, ``allorules.label_regions`` and
+the panel's x0.5 / x2.
 
 From a script (``EXEC_DEFAULT``) a run completes before the call returns. From the UI
 (``INVOKE_DEFAULT``) it runs in a worker thread (:mod:`allorules.blender.runner`) polled by a
@@ -29,6 +30,7 @@ from allorules.blender.objects import (
     discard,
     frame_axes,
     read_source,
+    write_regions,
 )
 from allorules.blender.results import RunSummary, run_summary
 from allorules.blender.runner import BackgroundRun, Cancelled
@@ -53,6 +55,11 @@ FORWARD_ITEMS = [
     ("+X", "World +X", "the animal faces +X"),
     ("-X", "World -X", "the animal faces -X"),
 ]
+REGIONS_ITEMS = [
+    ("DETECT", "Detect", "let allorules find the head, neck, chest, abdomen, legs (and tail, ears, horns)"),
+    ("GROUPS", "Vertex groups", "the regions painted as vertex groups region:head, region:neck, region:chest, "
+                                "region:abdomen, region:forelimbs, region:hindlimbs (Label Regions makes them)"),
+]
 GAP = 0.25   # space left between copies, as a share of the original's extent in that direction
 
 
@@ -66,11 +73,12 @@ class Settings:
     global_mode: bool
     up: np.ndarray | None
     forward: np.ndarray | None
+    painted: bool = False            # the regions come from the object's region: vertex groups
 
     def scale(self, source: SourceMesh, ratio: float, progress=None):
         return adapter.scale_arrays(source.vertices, source.triangles, ruleset=self.ruleset, mass_ratio=ratio,
                                     modes=self.modes, posture=self.posture, global_mode=self.global_mode,
-                                    up=self.up, forward=self.forward, progress=progress)
+                                    up=self.up, forward=self.forward, regions=source.regions, progress=progress)
 
 
 def copy_name(source_name: str, ratio: float) -> str:
@@ -81,6 +89,18 @@ def copy_name(source_name: str, ratio: float) -> str:
 def _one_line(error: BaseException) -> str:
     text = str(error).strip().splitlines()
     return text[0] if text else type(error).__name__
+
+
+def _poll_animal(cls, context) -> bool:
+    """An operator on the animal runs on the active mesh object, in Object Mode."""
+    obj = context.active_object
+    if obj is None or obj.type != 'MESH':
+        cls.poll_message_set("select the animal's mesh object and make it active")
+        return False
+    if context.mode != 'OBJECT':
+        cls.poll_message_set("switch to Object Mode first")
+        return False
+    return True
 
 
 class _RunsAllorules:
@@ -100,17 +120,10 @@ class _RunsAllorules:
     up: EnumProperty(name="Up", items=UP_ITEMS, default="Z", description="which way is up for the animal")
     forward: EnumProperty(name="Forward", items=FORWARD_ITEMS, default="AUTO",
                           description="which way the animal faces (tail to head); set it when allorules cannot tell")
+    regions: EnumProperty(name="Regions", items=REGIONS_ITEMS, default="DETECT",
+                          description="where the body's regions come from")
 
-    @classmethod
-    def poll(cls, context):
-        obj = context.active_object
-        if obj is None or obj.type != 'MESH':
-            cls.poll_message_set("select the animal's mesh object and make it active")
-            return False
-        if context.mode != 'OBJECT':
-            cls.poll_message_set("switch to Object Mode first")
-            return False
-        return True
+    poll = classmethod(_poll_animal)
 
     # --- what differs between the operators -----------------------------------------------------
     def ratios(self) -> list[float]:
@@ -127,7 +140,8 @@ class _RunsAllorules:
                             posture=None if self.posture == "RULESET" else self.posture,
                             global_mode=self.global_mode,
                             up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
-                            forward=None if forward is None else np.array(forward))
+                            forward=None if forward is None else np.array(forward),
+                            painted=self.regions == "GROUPS")
         for ratio in self.ratios():
             adapter.check_settings(ruleset=settings.ruleset, mass_ratio=ratio, modes=settings.modes,
                                    posture=settings.posture, global_mode=settings.global_mode)
@@ -173,7 +187,7 @@ class _RunsAllorules:
         source = None
         try:
             settings = self.settings()
-            source = read_source(context, context.active_object, copies=len(self.ratios()))
+            source = read_source(context, context.active_object, copies=len(self.ratios()), regions=settings.painted)
             return self.finish(context, source, self.work(settings, source))
         except BaseException as error:   # noqa: BLE001 - every failure becomes a report
             if source is not None:
@@ -187,7 +201,7 @@ class _RunsAllorules:
             return self.execute(context)
         try:
             settings = self.settings()
-            source = read_source(context, context.active_object, copies=len(self.ratios()))
+            source = read_source(context, context.active_object, copies=len(self.ratios()), regions=settings.painted)
         except AllorulesError as error:
             return self.fail(error)
         self._source = source
@@ -269,6 +283,42 @@ class ALLORULES_OT_gallery(_RunsAllorules, bpy.types.Operator):
         ]
 
 
+class ALLORULES_OT_label_regions(bpy.types.Operator):
+    """Find the active animal's regions as a run would and add them to it as vertex groups region:<name>, to check and paint before scaling with Regions set to Vertex groups"""
+
+    bl_idname = "allorules.label_regions"
+    bl_label = "Label Regions"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    up: EnumProperty(name="Up", items=UP_ITEMS, default="Z", description="which way is up for the animal")
+    forward: EnumProperty(name="Forward", items=FORWARD_ITEMS, default="AUTO",
+                          description="which way the animal faces (tail to head); set it when allorules cannot tell")
+
+    poll = classmethod(_poll_animal)
+
+    def execute(self, context):
+        obj = context.active_object
+        source = None
+        try:
+            source = read_source(context, obj, copies=1)
+            forward = adapter.FORWARD_DIRECTIONS[self.forward]
+            labels, names, report = adapter.label_arrays(
+                source.vertices, source.triangles, up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
+                forward=None if forward is None else np.array(forward))
+            added = write_regions(obj, labels, names)
+        except AllorulesError as error:
+            self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))
+            return {'CANCELLED'}
+        finally:
+            if source is not None:
+                discard(source)
+        sure = ", ".join(f"{key} {value:.2f}" for key, value in report.get("confidence", {}).items())
+        self.report({'INFO'}, f"{obj.name}: {len(added)} region vertex groups added ({', '.join(added)})"
+                              + (f"; confidence {sure}" if sure else "") + "; check them, paint where wrong, "
+                              "then scale with Regions set to Vertex groups")
+        return {'FINISHED'}
+
+
 class ALLORULES_OT_mass_ratio_times(bpy.types.Operator):
     """Multiply the panel's mass ratio"""
 
@@ -284,4 +334,4 @@ class ALLORULES_OT_mass_ratio_times(bpy.types.Operator):
         return {'FINISHED'}
 
 
-CLASSES = (ALLORULES_OT_scale, ALLORULES_OT_gallery, ALLORULES_OT_mass_ratio_times)
+CLASSES = (ALLORULES_OT_scale, ALLORULES_OT_gallery, ALLORULES_OT_label_regions, ALLORULES_OT_mass_ratio_times)

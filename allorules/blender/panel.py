@@ -1,8 +1,8 @@
 """The sidebar panel (3D viewport, N panel, tab "allorules") and the settings it edits.
 
 The settings live on the scene (``scene.allorules``): the ruleset (built-ins and plugins' sets
-with their descriptions, or a file), the mass ratio with x0.5 / x2, modes, posture, global mode
-and up. Scale and Gallery call the operators with them (invoked, so they run in the background).
+with their descriptions, or a file), the mass ratio with x0.5 / x2, modes, posture, global mode,
+up, forward and where the regions come from (detected, or the vertex groups Label Regions adds). Scale and Gallery call the operators with them (invoked, so they run in the background).
 After a run the panel shows its table: each rule's target and achieved exponent, met or not,
 the mass and stress ratios, and any warnings.
 """
@@ -19,7 +19,12 @@ from bpy.props import (
     StringProperty,
 )
 
-from allorules.blender.operators import FORWARD_ITEMS, POSTURE_ITEMS, UP_ITEMS
+from allorules.blender.operators import (
+    FORWARD_ITEMS,
+    POSTURE_ITEMS,
+    REGIONS_ITEMS,
+    UP_ITEMS,
+)
 from allorules.blender.results import RunSummary
 
 FILE = "__FILE__"
@@ -52,6 +57,7 @@ class AllorulesSettings(bpy.types.PropertyGroup):
                               description="one exponent for the whole body at unchanged limb stress (no ruleset)")
     up: EnumProperty(name="Up", items=UP_ITEMS, default="Z")
     forward: EnumProperty(name="Forward", items=FORWARD_ITEMS, default="AUTO")
+    regions: EnumProperty(name="Regions", items=REGIONS_ITEMS, default="DETECT")
     last_result: StringProperty(name="Last result", default="", options={'HIDDEN'})
 
     def chosen_ruleset(self) -> str:
@@ -66,6 +72,7 @@ def _fill(operator, settings: AllorulesSettings) -> None:
     operator.global_mode = settings.global_mode
     operator.up = settings.up
     operator.forward = settings.forward
+    operator.regions = settings.regions
 
 
 def _wrapped(layout, text: str, width: int = 44, icon: str = 'NONE') -> None:
@@ -100,6 +107,10 @@ class VIEW3D_PT_allorules(bpy.types.Panel):
         column.prop(settings, "posture")
         column.prop(settings, "up")
         column.prop(settings, "forward")
+        row = column.row(align=True)
+        row.prop(settings, "regions")
+        label = row.operator("allorules.label_regions", text="", icon='GROUP_VERTEX')
+        label.up, label.forward = settings.up, settings.forward
         column.prop(settings, "modes")
         column.separator()
         _fill(column.operator("allorules.scale", text="Scale", icon='FULLSCREEN_ENTER'), settings)

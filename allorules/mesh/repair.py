@@ -81,6 +81,36 @@ class PreparedMesh:
             positions[part.source_vertices] = original[part.source_vertices] + displacement[part.anchors]
         return positions
 
+    @property
+    def source_vertex_count(self) -> int:
+        """How many vertices the input had (the body's own count when it came as a body)."""
+        return len(self.source.vertices) if self.source is not None else len(self.vertices)
+
+    def source_labels(self, body_labels: np.ndarray, unlabelled: int = -1) -> np.ndarray:
+        """A label for every input vertex from the body's: a detached part's vertex takes its
+        anchor's (an eye shell, the head's), an unreferenced one ``unlabelled``."""
+        body_labels = np.asarray(body_labels)
+        if self.source is None:
+            return body_labels.copy()
+        labels = np.full(self.source_vertex_count, unlabelled, dtype=body_labels.dtype)
+        in_body = self.source_vertex_index >= 0
+        labels[in_body] = body_labels[self.source_vertex_index[in_body]]
+        for part in self.detached:
+            labels[part.source_vertices] = body_labels[part.anchors]
+        return labels
+
+    def body_labels(self, source_labels: np.ndarray, unlabelled: int = -1) -> np.ndarray:
+        """A label for every body vertex from the input's (``source_labels``, one per input vertex):
+        where repair merged input vertices into one, the last of them; a body vertex no input vertex
+        became (none today) ``unlabelled``."""
+        source_labels = np.asarray(source_labels)
+        if self.source is None:
+            return source_labels.copy()
+        labels = np.full(len(self.vertices), unlabelled, dtype=source_labels.dtype)
+        in_body = self.source_vertex_index >= 0
+        labels[self.source_vertex_index[in_body]] = source_labels[in_body]
+        return labels
+
 
 def prepare_mesh(mesh) -> PreparedMesh:
     """Repair a mesh (a path or a ``trimesh.Trimesh``) into a body; see the module docstring.

@@ -109,6 +109,29 @@ class LocalScaling:
 
 
 Scaling = Union[GlobalScaling, RulesetScaling, RawGlobalScaling, LocalScaling]
+
+
+@dataclass(frozen=True)
+class VertexRegions:
+    """Regions given for every vertex of the input as it came, not through a file (a Blender mesh's
+    vertex groups): ``labels[k]`` indexes ``region_names`` for input vertex ``k``, -1 for none;
+    ``source`` says where they came from (the report's labelling)."""
+
+    labels: np.ndarray
+    region_names: tuple[str, ...]
+    source: str
+
+    def on(self, prepared: PreparedMesh) -> Body:
+        """The prepared body with these regions (input vertices mapped onto the body's)."""
+        labels = np.asarray(self.labels, dtype=np.int64)
+        if labels.shape != (prepared.source_vertex_count,):
+            raise SegmentationError(f"{self.source}: {len(labels)} labels for a mesh of "
+                                    f"{prepared.source_vertex_count} vertices; they must come from this mesh")
+        if labels.size and (labels.min() < -1 or labels.max() >= len(self.region_names)):
+            raise SegmentationError(f"{self.source}: a label is not a region index (0 … {len(self.region_names) - 1}, "
+                                    "or -1 for none)")
+        return Body(prepared.vertices, prepared.faces).with_labels(prepared.body_labels(labels), self.region_names,
+                                                                  Labelling(self.source))
 PLACEMENTS = ("ground", "centroid")
 Result = Union[ScalingResult, RawGlobalResult, LocalResult]
 
@@ -179,17 +202,40 @@ def working(prepared: PreparedMesh, vertices: int | None = None) -> Working:
 
 
 def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegistry,
-                  segmenter: SegmenterUse | None = None, labels: str | Path | None = None, given: Body | None = None,
-                  up: np.ndarray | None = None, forward: np.ndarray | None = None,
+                  segmenter: SegmenterUse | None = None, labels: str | Path | VertexRegions | None = None,
+                  given: Body | None = None, up: np.ndarray | None = None, forward: np.ndarray | None = None,
                   regions: Iterable[str] = QUADRUPED_REGIONS) -> Body:
-    """The working body with regions: from a labels file or a ``given`` labelled body (both for
-    the user's prepared body, carried across to the working mesh), else from the segmenter on the
-    working mesh itself; regions not among ``regions`` fold into their neighbour."""
+    """The working body with regions: from a labels file, regions given per input vertex or a
+    ``given`` labelled body (all for the user's prepared body, carried across to the working mesh),
+    else from the segmenter on the working mesh itself; regions not among ``regions`` fold into
+    their neighbour."""
     if labels is None and given is None:
         return label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=regions)
-    user = given if labels is None else label(Body(prepared.vertices, prepared.faces), registry=registry,
-                                              labels=labels, up=up, forward=forward, regions=())
+    if isinstance(labels, VertexRegions):
+        user = labels.on(prepared)
+    elif labels is None:
+        user = given
+    else:
+        user = label(Body(prepared.vertices, prepared.faces), registry=registry, labels=labels, up=up,
+                     forward=forward, regions=())
     return fold_regions(work.from_user(user), tuple(regions))
+
+
+def input_regions(source: str | Path | Any, *, registry: PluginRegistry | None = None,
+                  segmenter: SegmenterUse | None = None, up: np.ndarray | None = None,
+                  forward: np.ndarray | None = None, working_vertices: int | None = None) -> tuple[VertexRegions, Body]:
+    """Every region the segmenter finds, as a run finds them (on the working mesh), for every vertex
+    of the input as it came (a detached part takes its anchor's region), and the working body
+    labelled (its frame, its labelling's confidence). What the Blender add-on writes as vertex groups
+    for the artist to check and paint, then gives back to :func:`run` (``labels``)."""
+    registry = registry if registry is not None else registry_for(None)
+    check_working_vertices(working_vertices)
+    prepared = prepare(source)
+    work = working(prepared, working_vertices)
+    on_working = label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=())
+    user = work.labels_to_user(on_working, Body(prepared.vertices, prepared.faces))
+    source_text = on_working.labelling.source if on_working.labelling else "segmenter"
+    return VertexRegions(prepared.source_labels(user.labels), tuple(user.region_names), source_text), on_working
 
 
 def wanted_regions(ruleset: Ruleset | None) -> tuple[str, ...]:
@@ -588,7 +634,7 @@ def run(
     scaling: Scaling,
     *,
     registry: PluginRegistry | None = None,
-    labels: str | Path | None = None,
+    labels: str | Path | VertexRegions | None = None,
     segmenter: SegmenterUse | None = None,
     up: np.ndarray | None = None,
     forward: np.ndarray | None = None,
@@ -600,8 +646,9 @@ def run(
 ) -> Run:
     """Prepare, label, scale and place ``source`` (a mesh file, a ``trimesh.Trimesh`` or a
     :class:`Body`; a labelled ``Body`` keeps its labels). The segmenter is ``segmenter``, else the
-    ruleset's, else ``auto-quadruped``; ``labels`` (a file, for the user's prepared body) replaces
-    it. ``placement``: ``"ground"`` (the output's feet where the input's were) or ``"centroid"``.
+    ruleset's, else ``auto-quadruped``; ``labels`` (a file for the user's prepared body, or
+    :class:`VertexRegions` for the input's vertices) replaces it. ``placement``: ``"ground"`` (the
+    output's feet where the input's were) or ``"centroid"``.
     ``working_vertices``: the working mesh's size (default
     :data:`allorules.mesh.working.WORKING_VERTICES`; a body at or below it is used as it is)."""
     registry = registry if registry is not None else registry_for(None)
@@ -618,7 +665,7 @@ def run(
                              regions=wanted_regions(ruleset))
     result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
     result, placed = place(body, result, placement)
-    return Run(prepared, body, scaling, result, Path(labels) if labels else None, placed,
+    return Run(prepared, body, scaling, result, Path(labels) if isinstance(labels, (str, Path)) else None, placed,
                None if work.binding is None else work)
 
 
