@@ -532,6 +532,7 @@ def _legs_touch(vertices, faces, adjacency, height, up, parent, foot_roots, v) -
 LEAK_SHARE = 0.01   # a head or neck cut with more of its area than this behind the middle plane leaks
 MIN_HEAD_CUT = 0.025   # a head cut smaller than this share of the surface is a snout's tip: the neck's cut is the head's
 NECK_BAND = 0.05       # but for this share of it at its base, the neck
+SHORT_NECK_REACH = 1.2  # where both cuts were a snout's, the rings' neck ends 1.2 × the throat's distance from the tip
 
 
 def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> None:
@@ -542,9 +543,10 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     cut them off the front (each the part connected to the head tip beyond its loop, see
     :func:`_beyond_loop`); a cut with more than LEAK_SHARE of its area behind the middle plane
     leaks into the body and is not used. A head cut under MIN_HEAD_CUT of the surface is a snout's
-    tip: what the neck's cut took off is the head, but for a band at its base (NECK_BAND). Where
-    the cuts give no head or no neck, the rings from the head tip decide them
-    (:func:`_ring_head_and_neck`). The tail (behind the hind legs) stays with the abdomen here;
+    tip: what the neck's cut took off is the head, but for a band at its base (NECK_BAND); where
+    both cuts together took off less than that, both were the muzzle's, and the rings decide the
+    head, its neck kept short (SHORT_NECK_REACH). Where the cuts give no head or no neck, the rings
+    from the head tip decide them (:func:`_ring_head_and_neck`). The tail (behind the hind legs) stays with the abdomen here;
     :func:`_cut_appendages` takes it out.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
@@ -562,6 +564,18 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
             if beyond is None or mass[beyond & (along < middle)].sum() > LEAK_SHARE * mass[beyond].sum():
                 continue   # the loop does not cut the front off (or leaks into the body): leave it
             labels[beyond] = region
+    front_cut = (labels == HEAD) | (labels == NECK)
+    if front_cut.any() and mass[front_cut].sum() < MIN_HEAD_CUT * mass.sum():
+        # both cuts took off a snout's tip (the pig 383 grazing, its head lowered: head and neck
+        # 1.7 % of the surface, the rest of its head and its ears labelled chest): the bends were
+        # the muzzle's; the rings from the head tip decide head and neck instead, the neck no
+        # longer than a fifth of the head (SHORT_NECK_REACH): an animal whose neck the cuts did not
+        # find shows little of it, and the rings alone made the pig's forequarters neck (15 % of
+        # its surface, 4.8 % standing)
+        labels[front_cut & (along >= middle)] = CHEST
+        labels[front_cut & (along < middle)] = ABDOMEN
+        _ring_head_and_neck(vertices, faces, graph, mass, labels, in_rest & ends.head.region, head_tip, along, middle,
+                            neck_reach=SHORT_NECK_REACH)
     merged = bool((labels == HEAD).any() and (labels == NECK).any()
                   and mass[labels == HEAD].sum() < MIN_HEAD_CUT * mass.sum())
     if merged:
@@ -582,7 +596,8 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
         _ring_head_and_neck(vertices, faces, graph, mass, labels, in_rest & ends.head.region, head_tip, along, middle)
 
 
-def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, along, middle) -> None:
+def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, along, middle,
+                        neck_reach: float | None = None) -> None:
     """Head and neck when the skeleton's bend gave none (a head held low, a neck the tube-following
     loses): the rings of geodesic distance from the head tip over the front end (``front``, beyond
     the fore legs' plane). Their length grows over the head and narrows at the throat: the head is
@@ -609,6 +624,8 @@ def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, a
     parts = vertex_components(graph, inside)
     head = inside & (parts == parts[head_tip])
     neck = front & ~head
+    if neck_reach is not None:        # the neck ends this many times the throat's distance from the tip
+        neck &= field < neck_reach * levels[throat]
     if not neck.any() or mass[front & (along < middle)].sum() > LEAK_SHARE * mass[front].sum():
         return
     labels[head] = HEAD
