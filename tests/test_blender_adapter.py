@@ -261,3 +261,15 @@ def test_a_run_that_misses_its_targets_adds_nothing_and_says_what_it_missed(stan
     message = str(refused.value)
     assert message.startswith("ruleset 'contradiction' did not reach its targets at mass ratio 1.1: ")
     assert "foreleg-length" in message and message.endswith("; nothing was added")
+
+
+def test_regions_painted_without_one_a_ruleset_needs_are_refused_in_the_panel_s_terms():
+    from allorules.mesh.quadruped import generate_quadruped
+
+    horse = generate_quadruped("horse", 2000)
+    painted = horse.labels.copy()
+    painted[painted == list(horse.region_names).index("neck")] = -1      # no neck painted
+    with pytest.raises(AllorulesError, match="needs region") as refused:
+        adapter.scale_arrays(horse.vertices, horse.faces, mass_ratio=2.0, regions=(painted, horse.region_names))
+    said = adapter.in_panel_terms(str(refused.value))
+    assert "paint the vertex groups it lacks (region:<name>)" in said and "--segmentation" not in said

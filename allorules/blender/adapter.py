@@ -41,7 +41,9 @@ REGION_GROUPS = ", ".join(GROUP_PREFIX + name for name in QUADRUPED_REGIONS)
 _PANEL_TERMS = (("--up DIR and --forward DIR (the body's feet-to-back and tail-to-head)", "the Up and Forward settings"),
                 ("--forward DIR (tail to head)", "the Forward setting"),
                 ("--up/--forward", "the Up and Forward settings"),
-                (BY_HAND, f"or vertex groups {REGION_GROUPS} painted by hand and Regions set to Vertex groups"))
+                (BY_HAND, f"or vertex groups {REGION_GROUPS} painted by hand and Regions set to Vertex groups"),
+                ("segment it (allorules segment) or give --segmentation FILE",
+                 f"paint the vertex groups it lacks ({GROUP_PREFIX}<name>), or set Regions to Detect"))
 
 
 def in_panel_terms(message: str) -> str:
@@ -109,7 +111,8 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``.
     ``regions``: (a region index for every input vertex, -1 for none; the region names), the
     regions painted as vertex groups, used instead of labelling the animal (``up``/``forward``
-    then only place the output). ``progress`` is told of steps, bases and trials and may raise to cancel the run.
+    then only place the output). ``progress`` is told of steps, bases and trials and may raise to
+    cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
     ``allorules scale --report`` writes it, plus ``up`` and ``forward``: the body's frame in the
