@@ -103,6 +103,12 @@ def test_regions_painted_where_the_labeller_refuses_are_used_for_the_run():
     said = adapter.in_panel_terms(str(refused.value))
     assert "or vertex groups region:head, region:neck" in said and "Regions set to Vertex groups" in said
     assert "--segmentation" not in said and "merge file" not in said
+    # the labeller's other refusals name the labels file the same way
+    from allorules.segment.body_plan import BY_HAND
+
+    said = adapter.in_panel_terms(f"found no neck on this mesh; give the regions with {BY_HAND}, or try --up/--forward")
+    assert said == (f"found no neck on this mesh; give the regions with {adapter.PAINT_GROUPS}, or try the Up and "
+                    "Forward settings")
     painted = horse.labels.copy()
     painted[::40] = -1                                   # a few vertices the brush missed
     new, report = adapter.scale_arrays(vertices, horse.faces, mass_ratio=2.0, modes=40, global_mode=True, up=up,

@@ -35,13 +35,15 @@ FORWARD_DIRECTIONS = {"AUTO": None, "-Y": (0.0, -1.0, 0.0), "+Y": (0.0, 1.0, 0.0
 # groups, an armature's bone weights among them, are not regions).
 GROUP_PREFIX = "region:"
 REGION_GROUPS = ", ".join(GROUP_PREFIX + name for name in QUADRUPED_REGIONS)
+PAINT_GROUPS = f"vertex groups {REGION_GROUPS} painted by hand and Regions set to Vertex groups"
 
 # The command line's options as the panel names them: a refusal says how to settle it (the labeller:
 # "settle it with --up DIR and --forward DIR ..., or a labels file ..."), and in Blender that is the panel.
 _PANEL_TERMS = (("--up DIR and --forward DIR (the body's feet-to-back and tail-to-head)", "the Up and Forward settings"),
                 ("--forward DIR (tail to head)", "the Forward setting"),
                 ("--up/--forward", "the Up and Forward settings"),
-                (BY_HAND, f"or vertex groups {REGION_GROUPS} painted by hand and Regions set to Vertex groups"),
+                (f", {BY_HAND}", f", or {PAINT_GROUPS}"),     # "settle it with the Forward setting, or ..."
+                (BY_HAND, PAINT_GROUPS),                       # "give the regions with ..."
                 ("segment it (allorules segment) or give --segmentation FILE",
                  f"paint the vertex groups it lacks ({GROUP_PREFIX}<name>), or set Regions to Detect"))
 

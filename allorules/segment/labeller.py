@@ -125,8 +125,7 @@ def label_quadruped(body: Body, *, up=None, forward=None, complete: bool = True)
     labels = renumber[labels + 1]
     if missing and complete:
         raise SegmentationError(
-            f"found no {' and no '.join(missing)} on this mesh; give the regions with --segmentation FILE "
-            "(allorules segment --patches 24 and a merge file)"
+            f"found no {' and no '.join(missing)} on this mesh; give the regions with {body_plan.BY_HAND}"
             + ("" if up is not None and forward is not None else ", or try --up/--forward")
         )
     if complete:
@@ -148,8 +147,7 @@ def _check_proportions(labels: np.ndarray, area: np.ndarray) -> None:
     if wrong:
         raise SegmentationError(
             f"the regions found are not a four-legged animal's ({', '.join(wrong)} of the surface): the mesh may "
-            "not stand on four legs, or ears or arms were taken for feet; give the regions with --segmentation FILE "
-            "(allorules segment --patches 24 --png patches.png and a merge file)")
+            f"not stand on four legs, or ears or arms were taken for feet; give the regions with {body_plan.BY_HAND}")
 
 
 def _unit_or_none(direction, name: str) -> np.ndarray | None:
