@@ -641,6 +641,35 @@ def test_a_run_that_bows_a_leg_says_so():
         assert len(warnings) == int(warned)                  # and no lean: the leg's ends stayed put
 
 
+def test_a_leg_bent_at_a_knee_changes_shape_where_one_grown_longer_and_thicker_does_not():
+    """``shape_change`` (limbs.posture_change): the second leg grown 30 % longer and 20 % thicker
+    below its cut (an affine image of itself, as a leg scaled by its rules is) measures 0; bent by
+    60° at a knee half way down it measures well beyond the warning, and the run says so."""
+    from allorules.measure.limbs import posture_change
+    from allorules.runs.ruleset_run import POSTURE_SHAPE_WARNING, posture_warnings
+
+    body = legs_body()
+    x, z = body.vertices[:, 0], body.vertices[:, 2]
+    second = (x > 2.0) & (z < -1.0)              # the leg and the rim of the body it hangs from
+    grown = body.vertices.copy()
+    grown[second, 0] = 4.0 + 1.2 * (x[second] - 4.0)
+    grown[second, 1] *= 1.2
+    grown[second, 2] = -2.0 + 1.3 * (z[second] + 2.0)
+    posture = posture_change(body, body.with_vertices(grown))
+    assert max(change["shape_change"] for change in posture.values()) < 1e-6
+
+    bent = body.vertices.copy()
+    below = second & (z < -3.0)                  # the lower half, turned about the knee
+    angle = np.radians(60.0)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(angle), -np.sin(angle)], [0.0, np.sin(angle), np.cos(angle)]])
+    knee = np.array([4.0, 0.0, -3.0])
+    bent[below] = (bent[below] - knee) @ turn.T + knee
+    posture = posture_change(body, body.with_vertices(bent))
+    shapes = sorted(change["shape_change"] for change in posture.values())
+    assert shapes[0] < 1e-6 and shapes[1] > 2 * POSTURE_SHAPE_WARNING
+    assert any(warning.startswith("forelimbs[1] changed shape by") for warning in posture_warnings(posture))
+
+
 # ---------------------------------------------------------------------------------------------
 # Limb length is continuous: it does not jump between nearly identical meshes (issue 6)
 

@@ -40,6 +40,7 @@ from allorules.measure.sections import (
     boundary_loops,
     isocontour_loops,
 )
+from allorules.mesh.geometry import affine_misfit, vertex_areas
 
 # Share of a limb's area at its far end (the foot: a hoof, a wide sole) that a limb's skeleton
 # does not cut into sections: the field along the leg flattens across a sole, where its
@@ -260,13 +261,27 @@ def girth_spread(before: Limb, after: Limb) -> float:
     return float(np.expm1(high - low))
 
 
+def _shape_change(limb: Limb, before: np.ndarray, after: np.ndarray, areas: np.ndarray) -> float:
+    """How far the limb's vertices clear of its junction (beyond :attr:`Limb.clear_level`; the rim
+    where it joins the body moves with the body) are after from any affine image of themselves."""
+    index = limb.mesh.vertex_index
+    clear = limb.field > limb.clear_level
+    if clear.sum() >= 4:
+        index = index[clear]
+    return affine_misfit(before[index], after[index], areas[index])
+
+
 def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     """How the limbs' stance and shape changed from ``before`` to ``after`` (same faces and labels).
 
     Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
     centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
     lowest foot, as a share of the leg's length; ``bend``, the change of :func:`limb_bend` (a leg
-    that bows); ``girth_spread``, :func:`girth_spread` (a leg swollen along part of its length).
+    that bows); ``girth_spread``, :func:`girth_spread` (a leg swollen along part of its length);
+    ``shape_change``, how far the leg after, clear of its junction, is from any affine image of
+    the leg before (:func:`allorules.mesh.geometry.affine_misfit`, area-weighted, in units of its
+    size: a leg grown longer and thicker by its own factors is 0, one bent, curled or crumpled is
+    not).
     Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for; the report
     shows it because an allometric edit can meet every rule yet leave the animal
     leaning or its legs bent.
@@ -285,6 +300,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
         lengths = np.array([limb.length for limb in limbs])
         return axes, (heights - heights.min()) / lengths
 
+    areas = vertex_areas(before.vertices, before.faces)
     axes_before, lift_before = stance(limbs_before)
     axes_after, lift_after = stance(limbs_after)
     change = {}
@@ -295,6 +311,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
             "foot_lift": float(lift_after[index] - lift_before[index]),
             "bend": limb_bend(limbs_after[index]) - limb_bend(limb),
             "girth_spread": girth_spread(limb, limbs_after[index]),
+            "shape_change": _shape_change(limb, before.vertices, after.vertices, areas),
         }
     return change
 

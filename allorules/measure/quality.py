@@ -255,19 +255,22 @@ class LegStance:
     foot_lift: float        # in leg lengths (height above the lowest foot)
     bend: float             # change of the bow, in leg lengths
     girth_spread: float     # how unevenly its girth changed along it (limbs.girth_spread)
+    shape_change: float     # how far from any affine image of itself (bent, curled), in units of its size
 
     def as_dict(self) -> dict:
         return {"leg": self.leg, "tilt_degrees": float(self.tilt_degrees), "foot_lift": float(self.foot_lift),
-                "bend": float(self.bend), "girth_spread": float(self.girth_spread)}
+                "bend": float(self.bend), "girth_spread": float(self.girth_spread),
+                "shape_change": float(self.shape_change)}
 
 
 def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
-    """Each leg's lean, foot lift and bow change (:func:`allorules.measure.limbs.posture_change`)."""
+    """Each leg's lean, foot lift, bow change, girth spread and shape change
+    (:func:`allorules.measure.limbs.posture_change`)."""
     from allorules.measure.limbs import posture_change
 
     change = posture_change(before, before.with_vertices(np.asarray(after, dtype=float)))
-    return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"], values["girth_spread"])
-            for leg, values in change.items()]
+    return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"], values["girth_spread"],
+                      values["shape_change"]) for leg, values in change.items()]
 
 
 @dataclass(frozen=True)

@@ -121,6 +121,22 @@ def similarity_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray |
     return scale, rotation, mean_target - scale * rotation @ mean_source
 
 
+def affine_misfit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """How far ``target`` is from any affine image of ``source`` (same points, moved): the weighted
+    RMS residual of the best affine map, min Σ w_i ‖A p_i + t − q_i‖², over the weighted RMS size of
+    ``target`` about its centroid. 0 for any stretch, shear, turn or move (a leg grown longer and
+    thicker by different factors); a part bent or curled is not an affine image of itself."""
+    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
+    weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
+    weights = weights / weights.sum()
+    root = np.sqrt(weights)[:, None]
+    homogeneous = np.hstack([source, np.ones((len(source), 1))])
+    mapping = np.linalg.lstsq(homogeneous * root, target * root, rcond=None)[0]
+    residual = np.einsum("ij,ij->i", target - homogeneous @ mapping, target - homogeneous @ mapping)
+    size = float(weights @ np.einsum("ij,ij->i", target - weights @ target, target - weights @ target))
+    return float(np.sqrt(weights @ residual / size)) if size > 0 else 0.0
+
+
 def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Signed volume enclosed by a closed, outward-oriented triangle surface.
 

@@ -90,6 +90,12 @@ LAST_STEP_REFITS = 2            # times the last step may be solved again for it
 LAST_STEP_MISS = 0.25           # ... when one is more than this share of its tolerance (mass, a rule's exponent)
 POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
 POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
+# How far a leg may move from any affine image of itself (limbs.posture_change "shape_change", clear of
+# its junction, in units of its size) before the user is warned: legs that look right measure 0.03-0.08
+# (the generated horse galloping at ×2 and ×0.5, the grazing pig 383 at ×2); the generated horse's
+# folded hind legs, sitting, curled at ×2 (0.12) and crumpled into its belly at ×0.5 (0.14), the
+# sitting dog's at ×0.5 0.11, while the bow's measure saw no more than 4 % in the horse's.
+POSTURE_SHAPE_WARNING = 0.10
 
 
 # ---------------------------------------------------------------------------------------------
@@ -423,7 +429,8 @@ def _carried_misses(terms, anchors: dict[str, float], reached: float, current: B
 def posture_warnings(posture: dict[str, dict[str, float]]) -> list[str]:
     """What a run's ``posture`` (per leg: ``tilt_degrees``, ``foot_lift``, ``bend``) should warn
     about: legs leaning more than ``POSTURE_TILT_WARNING`` degrees, a leg bowing by more than
-    ``POSTURE_BEND_WARNING`` of its length beyond the input's bow. Empty when all is well."""
+    ``POSTURE_BEND_WARNING`` of its length beyond the input's bow, a leg bent, curled or crumpled
+    (``shape_change`` beyond ``POSTURE_SHAPE_WARNING``). Empty when all is well."""
     if not posture:
         return []
     warnings = []
@@ -437,6 +444,11 @@ def posture_warnings(posture: dict[str, dict[str, float]]) -> list[str]:
         warnings.append(f"{leg} bows by {100 * change['bend']:.1f}% of its length more than in the input: Eq. 9 "
                         "changed the leg's own shape, which no rule measures; look at the output "
                         "(docs/biology-scaling.md, posture)")
+    leg, change = max(posture.items(), key=lambda item: item[1].get("shape_change", 0.0))
+    if change.get("shape_change", 0.0) > POSTURE_SHAPE_WARNING:
+        warnings.append(f"{leg} changed shape by {100 * change['shape_change']:.0f}% of its size beyond a stretch "
+                        "(bent, curled or pressed into the body, as folded legs can be): Eq. 9 changed the leg's "
+                        "own shape, which no rule measures; look at the output (docs/biology-scaling.md, posture)")
     return warnings
 
 
