@@ -132,9 +132,9 @@ def affine_misfit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | 
     root = np.sqrt(weights)[:, None]
     homogeneous = np.hstack([source, np.ones((len(source), 1))])
     mapping = np.linalg.lstsq(homogeneous * root, target * root, rcond=None)[0]
-    residual = np.einsum("ij,ij->i", target - homogeneous @ mapping, target - homogeneous @ mapping)
-    size = float(weights @ np.einsum("ij,ij->i", target - weights @ target, target - weights @ target))
-    return float(np.sqrt(weights @ residual / size)) if size > 0 else 0.0
+    left, spread = target - homogeneous @ mapping, target - weights @ target
+    size = float(weights @ np.einsum("ij,ij->i", spread, spread))
+    return float(np.sqrt(weights @ np.einsum("ij,ij->i", left, left) / size)) if size > 0 else 0.0
 
 
 def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:

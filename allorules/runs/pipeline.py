@@ -6,9 +6,11 @@
    becomes a repaired body that remembers how it maps back onto the input (METHOD §1); a body
    above the working size gets a working mesh (:func:`working`, METHOD §9), on which everything
    else happens and from which the result is carried back to every vertex of the user's body.
-2. :func:`label`: regions from a labels file (allorules JSON or Princeton ``.seg``) or from a
-   segmenter through the plugin hook (the ruleset's, ``auto-quadruped`` by default); then regions
-   nobody asked for are folded into their neighbour (:func:`allorules.segment.regions.fold_regions`).
+2. :func:`label`: regions from a labels file (allorules JSON or Princeton ``.seg``), given per
+   input vertex (:class:`VertexRegions`: the Blender add-on's vertex groups, which
+   :func:`input_regions` makes) or from a segmenter through the plugin hook (the ruleset's,
+   ``auto-quadruped`` by default); then regions nobody asked for are folded into their neighbour
+   (:func:`allorules.segment.regions.fold_regions`).
    The body's :class:`~allorules.body.Labelling` says which file or segmenter labelled it.
 3. :func:`scale`: one of the four kinds of scaling (:data:`Scaling`).
 4. :func:`place`: the output stands where the input stood: its feet on the input's ground plane at
@@ -132,6 +134,8 @@ class VertexRegions:
                                     "or -1 for none)")
         return Body(prepared.vertices, prepared.faces).with_labels(prepared.body_labels(labels), self.region_names,
                                                                   Labelling(self.source))
+
+
 PLACEMENTS = ("ground", "centroid")
 Result = Union[ScalingResult, RawGlobalResult, LocalResult]
 

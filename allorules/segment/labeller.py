@@ -544,8 +544,8 @@ def _split_torso(vertices, faces, graph, mass, axis, labels, ends, head_tip) -> 
     tip: what the neck's cut took off is the head, but for a band at its base (NECK_BAND); where
     both cuts together took off less than that, both were the muzzle's, and the rings decide the
     head, its neck kept short (SHORT_NECK_REACH). Where the cuts give no head or no neck, the rings
-    from the head tip decide them (:func:`_ring_head_and_neck`). The tail (behind the hind legs) stays with the abdomen here;
-    :func:`_cut_appendages` takes it out.
+    from the head tip decide them (:func:`_ring_head_and_neck`). The tail (behind the hind legs)
+    stays with the abdomen here; :func:`_cut_appendages` takes it out.
     """
     rest = np.flatnonzero(labels == UNLABELLED)
     along = vertices @ axis
@@ -600,7 +600,9 @@ def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, a
     loses): the rings of geodesic distance from the head tip over the front end (``front``, beyond
     the fore legs' plane). Their length grows over the head and narrows at the throat: the head is
     the tip's part within the narrowest ring past the head's widest (in the first 60 % of the way;
-    without a narrowing, 40 % of the way), the neck the rest of the front end."""
+    without a narrowing, 40 % of the way), the neck the rest of the front end (with ``neck_reach``,
+    only what lies within that many times the throat's distance from the tip; the rest stays as
+    labelled)."""
     if not front[head_tip]:
         return
     index = np.flatnonzero(front)
