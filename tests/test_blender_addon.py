@@ -335,7 +335,7 @@ class ModalDriver:
         self.operator = Driven()
         self.operator.reports = []
         defaults = dict(ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z",
-                        forward="AUTO")
+                        forward="AUTO", regions="DETECT")
         for key, value in {**defaults, **settings}.items():
             setattr(self.operator, key, value)
         self.status: list = []
