@@ -79,6 +79,15 @@ def _arrays(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
     return vertices, faces
 
 
+def _frame(body) -> dict[str, list[float]]:
+    """The body's ``up`` and ``forward`` in the input's coordinates: the labeller's frame, else the
+    regions' (:func:`allorules.solve.transform.anatomical_axes`)."""
+    from allorules.solve.transform import anatomical_axes
+
+    forward, up, _ = anatomical_axes(body)
+    return {"up": up.tolist(), "forward": forward.tolist()}
+
+
 def label_arrays(vertices: np.ndarray, faces: np.ndarray, *, up: np.ndarray | None = None,
                  forward: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...], dict[str, Any]]:
     """The regions of the animal ``vertices`` / ``faces`` as a run finds them (every one the labeller
@@ -91,10 +100,7 @@ def label_arrays(vertices: np.ndarray, faces: np.ndarray, *, up: np.ndarray | No
 
     vertices, faces = _arrays(vertices, faces)
     regions, body = pipeline.input_regions(trimesh.Trimesh(vertices, faces, process=False), up=up, forward=forward)
-    report: dict[str, Any] = {"source": regions.source}
-    if body.frame is not None:
-        report["up"] = np.asarray(body.frame.up, dtype=float).tolist()
-        report["forward"] = np.asarray(body.frame.forward, dtype=float).tolist()
+    report: dict[str, Any] = {"source": regions.source, **_frame(body)}
     if body.labelling is not None:
         report["confidence"] = {key: float(value) for key, value in body.labelling.confidence.items()}
     return regions.labels, regions.region_names, report
@@ -127,7 +133,6 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     from allorules.plugins.registry import registry_for
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline
-    from allorules.solve.transform import anatomical_axes
 
     vertices, faces = _arrays(vertices, faces)
     check_settings(ruleset=ruleset, mass_ratio=mass_ratio, modes=modes, posture=posture, global_mode=global_mode)
@@ -147,7 +152,5 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     if not run.converged:
         raise ScalingError(f"{run.missed()}; nothing was added", closest=run.result)
     new_vertices = run.output_vertices()      # placed by the pipeline: the feet where the input's were
-    forward_axis, up_axis, _ = anatomical_axes(run.body)     # the labeller's frame, else the regions'
-    report["up"] = up_axis.tolist()
-    report["forward"] = forward_axis.tolist()
+    report.update(_frame(run.body))
     return new_vertices, report

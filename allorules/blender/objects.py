@@ -104,8 +104,9 @@ def write_regions(obj, labels: np.ndarray, names) -> list[str]:
     """Add a vertex group ``region:<name>`` (weight 1) to ``obj`` for each region with vertices;
     ``labels`` holds one region index per vertex of ``obj``'s own mesh. Refused where the object
     already has region groups (someone may have painted them). Returns the groups' names."""
-    if region_groups(obj):
-        raise SegmentationError(f"{obj.name} already has region vertex groups ({', '.join(sorted(region_groups(obj).values()))}); "
+    painted = region_groups(obj)
+    if painted:
+        raise SegmentationError(f"{obj.name} already has region vertex groups ({', '.join(sorted(painted.values()))}); "
                                 "delete them to label it again")
     if len(labels) != len(obj.data.vertices):
         raise MeshError(f"{obj.name}: its modifiers change its vertices ({len(obj.data.vertices)} → {len(labels)}); "

@@ -91,6 +91,12 @@ def _one_line(error: BaseException) -> str:
     return text[0] if text else type(error).__name__
 
 
+def _directions(up: str, forward: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The Up and Forward settings as the adapter takes them (``None``: detected)."""
+    facing = adapter.FORWARD_DIRECTIONS[forward]
+    return (np.array([0.0, 0.0, 1.0]) if up == "Z" else None), (None if facing is None else np.array(facing))
+
+
 def _poll_animal(cls, context) -> bool:
     """An operator on the animal runs on the active mesh object, in Object Mode."""
     obj = context.active_object
@@ -135,12 +141,10 @@ class _RunsAllorules:
     # --- shared ---------------------------------------------------------------------------------
     def settings(self) -> Settings:
         ruleset = bpy.path.abspath(self.ruleset) if self.ruleset.startswith("//") else self.ruleset
-        forward = adapter.FORWARD_DIRECTIONS[self.forward]
+        up, forward = _directions(self.up, self.forward)
         settings = Settings(ruleset=ruleset, modes=self.modes or None,
                             posture=None if self.posture == "RULESET" else self.posture,
-                            global_mode=self.global_mode,
-                            up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
-                            forward=None if forward is None else np.array(forward),
+                            global_mode=self.global_mode, up=up, forward=forward,
                             painted=self.regions == "GROUPS")
         for ratio in self.ratios():
             adapter.check_settings(ruleset=settings.ruleset, mass_ratio=ratio, modes=settings.modes,
@@ -301,10 +305,8 @@ class ALLORULES_OT_label_regions(bpy.types.Operator):
         source = None
         try:
             source = read_source(context, obj, copies=1)
-            forward = adapter.FORWARD_DIRECTIONS[self.forward]
-            labels, names, report = adapter.label_arrays(
-                source.vertices, source.triangles, up=np.array([0.0, 0.0, 1.0]) if self.up == "Z" else None,
-                forward=None if forward is None else np.array(forward))
+            up, forward = _directions(self.up, self.forward)
+            labels, names, report = adapter.label_arrays(source.vertices, source.triangles, up=up, forward=forward)
             added = write_regions(obj, labels, names)
         except AllorulesError as error:
             self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))

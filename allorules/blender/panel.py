@@ -2,7 +2,8 @@
 
 The settings live on the scene (``scene.allorules``): the ruleset (built-ins and plugins' sets
 with their descriptions, or a file), the mass ratio with x0.5 / x2, modes, posture, global mode,
-up, forward and where the regions come from (detected, or the vertex groups Label Regions adds). Scale and Gallery call the operators with them (invoked, so they run in the background).
+up, forward and where the regions come from (detected, or the vertex groups Label Regions adds).
+Scale and Gallery call the operators with them (invoked, so they run in the background).
 After a run the panel shows its table: each rule's target and achieved exponent, met or not,
 the mass and stress ratios, and any warnings.
 """
