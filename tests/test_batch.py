@@ -207,6 +207,7 @@ def test_a_jobs_report_keeps_the_outputs_quality_and_the_summary_shows_it(inputs
     assert cells["flipped_faces"] == "0" and float(cells["roughness_degrees"]) == pytest.approx(row["roughness_degrees"], rel=1e-3)
 
 
+@pytest.mark.heavy
 def test_a_job_that_misses_its_targets_fails_and_writes_only_the_unconverged_mesh(inputs, tmp_path):
     """As `allorules scale --keep-unconverged`: the mesh goes to OUT.unconverged.EXT, never under the
     name asked for, and the job fails saying so. A batch wrote it as the output and counted the job

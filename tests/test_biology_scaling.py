@@ -184,6 +184,7 @@ def test_the_trunks_verdict_says_where_the_rules_leave_the_mass(animal, registry
     assert mass_left(load_ruleset("isometric", registry), body, 2.0) == ""
 
 
+@pytest.mark.heavy
 def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, monkeypatch, tmp_path):
     """Without the trunk's stretch Eq. 9 can still draw the trunk out: the bull 386 at x2 met every
     rule with its trunk's length at exponent 0.6. Unless a rule measures a torso region's length, a
@@ -272,6 +273,7 @@ def test_the_trunks_length_is_a_measure_a_rule_can_name(animal, registry, tmp_pa
     assert (term.measure, term.region, term.exponent) == ("trunk-length", None, pytest.approx(1 / 3))
 
 
+@pytest.mark.heavy
 def test_a_converged_run_whose_trunk_strayed_is_made_again_held(animal, registry, monkeypatch):
     """A run that meets every target with its trunk's length within TRUNK_LENGTH_TOLERANCE of 1/3
     but beyond TRUNK_LENGTH_RETRY is made again with the trunk held (solver.trunk_hold), and the
@@ -544,6 +546,7 @@ def test_cli_posture_overrides_the_ruleset(mesh_files, tmp_path, capsys):
     assert lift["keep"] < 0.002 < lift["free"]
 
 
+@pytest.mark.heavy
 def test_cli_unconverged_run_fails_without_writing_the_mesh(mesh_files, tmp_path, registry, capsys):
     from allorules.cli import main
 

@@ -405,6 +405,7 @@ def _border_share(body: Body, region: str, neighbour: str) -> float:
 
 @pytest.mark.shared_meshes
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_most_real_meshes_are_labelled_not_refused():
     """Measured: 15 of the 16 labelled right (the cartoon elephant standing on two legs is refused)."""
     right = 0
@@ -479,6 +480,7 @@ def test_a_belly_a_leg_meets_small_that_grows_into_the_body_ends_the_leg():
 
 @pytest.mark.shared_meshes
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_head_whose_ears_and_horns_are_cut_does_not_become_all_trunk():
     """The cow 381 Loop-subdivided three times and decimated to 200,000 vertices (as
     benchmarks/bench_resolution.py makes it), labelled on its working mesh: the smoothed muzzle
@@ -577,6 +579,7 @@ def _working_mesh_of_200k(prepared):
 @pytest.mark.shared_meshes
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["389.off", "387.off", "camel.obj"])
+@pytest.mark.heavy
 def test_the_head_and_the_neck_end_at_the_same_places_as_they_come_and_at_200k(name):
     """The dog 389's narrowest neck section lies half way down its short neck (0.50 of it on the
     9k mesh's working mesh, 0.53 at 200k): where the head's end was the narrowest section up to

@@ -256,6 +256,7 @@ def test_body_without_limbs_is_refused(bone):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("ratio", [2.0, 0.5])
+@pytest.mark.heavy
 def test_generated_horse_mass_ratio(horse, ratio):
     from allorules.measure.mass import body_mass
     from allorules.measure.stress import peak_stress

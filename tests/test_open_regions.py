@@ -77,6 +77,7 @@ def test_a_rule_replaces_the_default_and_appendages_are_open(generated_horse, tm
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_soft_terms_hold_the_open_neck_when_asked_and_neck_override_still_controls(tmp_path):
     """The demo's animal (2,000 vertices, 120 modes) at ×2: held by soft terms of weight 1 (a ruleset's
     open_regions; the shape hold, the default, is tests/test_held_regions.py), the open neck's length and mass exponents stay within ±0.02 of 1/3 and 1 (it was
