@@ -240,6 +240,9 @@ def test_stress_gauge_follows_the_material(horse):
     moved = body.with_vertices(2.5 * body.vertices @ q.T + 7.0)
     np.testing.assert_allclose(gauge.areas(moved.vertices), 6.25 * gauge.areas(body.vertices), rtol=1e-10)
     assert gauge.stress(moved) == pytest.approx(2.5 * gauge.stress(body), rel=1e-10)
+    # all bands at once (what every trial of a run measures) as each band alone, under a stretch too
+    stretched = body.vertices * np.array([1.3, 0.8, 1.1])
+    np.testing.assert_allclose(gauge.areas(stretched), [band.area(stretched) for band in gauge.bands], rtol=1e-12)
     # an override follows exactly one section: the user's
     chosen = load_bearing_section(body, override=SectionChoice("hindlimbs", 0.5))
     single = StressGauge.choose(body, override=SectionChoice("hindlimbs", 0.5))

@@ -238,6 +238,25 @@ def test_skeleton_of_a_bent_tube_follows_the_bend():
     assert result.diameter == pytest.approx(12.0, rel=0.02)
 
 
+def test_a_moved_skeleton_is_its_loops_moved_one_by_one_and_follows_a_similarity():
+    """Skeleton.moved takes every loop's points and centroid in one pass (a run moves skeletons on
+    every trial): the same as each loop moved alone, and under a similarity the skeleton's image."""
+    vertices, faces = capsule(10.0, 1.0)
+    result = skeleton(vertices, faces, fiedler_vector(vertices, faces))
+    stretched = vertices * np.array([1.4, 0.7, 1.2]) + 0.05 * np.sin(vertices[:, [1, 2, 0]])
+    moved = result.moved(stretched)
+    for node, loop in enumerate(result.loops):
+        if loop is not None:
+            alone = loop.moved(stretched)
+            np.testing.assert_allclose(moved.loops[node].points, alone.points, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(moved.points[node], alone.centroid, rtol=0, atol=1e-12)
+    q, _ = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))
+    turned = result.moved(3.0 * vertices @ q.T + 2.0)
+    np.testing.assert_allclose(turned.points, 3.0 * result.points @ q.T + 2.0, rtol=0, atol=1e-9)
+    assert turned.diameter == pytest.approx(3.0 * result.diameter, rel=1e-12)
+    assert moved.moved(vertices).diameter == pytest.approx(result.diameter, rel=1e-12)   # and back
+
+
 # ---------------------------------------------------------------------------------------------
 # Limbs, lengths, girths, peak stress
 

@@ -104,6 +104,75 @@ class Loop:
         return vector / norm if norm > 0 else vector
 
 
+@dataclass(frozen=True)
+class MovedLoops:
+    """Many loops of one mesh moved together (:meth:`Loop.moved` and :attr:`Loop.centroid` of each,
+    in one pass over numpy arrays): what a skeleton does on every trial of a run.
+
+    The loops' points lie end to end, loop k's from ``starts[k]``; a point is
+    v[edge_start] + weight (v[edge_end] − v[edge_start]) (a boundary's vertex: both ends that
+    vertex, weight 0); ``following`` is each point's successor in its loop and ``segment`` whether
+    the segment to it is one (not the closing one of an open chain).
+    """
+
+    loops: tuple[Loop, ...]
+    edge_start: np.ndarray
+    edge_end: np.ndarray
+    weights: np.ndarray
+    starts: np.ndarray
+    counts: np.ndarray
+    following: np.ndarray
+    segment: np.ndarray
+
+    @classmethod
+    def of(cls, loops: list[Loop]) -> "MovedLoops":
+        counts = np.asarray([len(loop.points) for loop in loops], dtype=np.int64)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if len(loops) else counts
+        total = int(counts.sum())
+        following = np.arange(total, dtype=np.int64) + 1
+        segment = np.ones(total, dtype=bool)
+        ends = starts + counts - 1
+        closed = np.asarray([loop.closed for loop in loops], dtype=bool)
+        following[ends[counts > 0]] = starts[counts > 0]
+        segment[ends[(counts > 0) & ~closed]] = False
+        pieces = []
+        for loop in loops:
+            if loop.vertex_ids is not None:
+                ids = np.asarray(loop.vertex_ids, dtype=np.int64)
+                pieces.append((ids, ids, np.zeros(len(ids))))
+            elif loop.edges is not None:
+                pieces.append((loop.edges[:, 0], loop.edges[:, 1], np.asarray(loop.weights, dtype=np.float64)))
+            else:
+                raise ValueError("this loop does not know the mesh edges it lies on")
+        join = (lambda k: np.concatenate([piece[k] for piece in pieces])) if pieces else (lambda k: np.zeros(0))
+        return cls(tuple(loops), join(0).astype(np.int64), join(1).astype(np.int64), join(2), starts, counts,
+                   following, segment)
+
+    def on(self, vertices: np.ndarray) -> tuple[list[Loop], np.ndarray]:
+        """The loops on the mesh with new ``vertices``, and the centroid of each (k, 3)."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        start = vertices[self.edge_start]
+        points = start + self.weights[:, None] * (vertices[self.edge_end] - start)
+        moved = [Loop(points[first:first + count], loop.faces, loop.level, loop.closed, loop.vertex_ids,
+                      loop.edges, loop.weights)
+                 for loop, first, count in zip(self.loops, self.starts.tolist(), self.counts.tolist())]
+        if not len(points):
+            return moved, np.zeros((len(moved), 3))
+        # Loop.centroid of each: the segments' midpoints weighted by their lengths
+        following = points[self.following]
+        lengths = np.where(self.segment, np.linalg.norm(following - points, axis=1), 0.0)
+        present = self.counts > 0
+        firsts = self.starts[present]
+        total = np.zeros(len(moved))
+        weighted = np.zeros((len(moved), 3))
+        total[present] = np.add.reduceat(lengths, firsts)
+        weighted[present] = np.add.reduceat((points + following) * 0.5 * lengths[:, None], firsts, axis=0)
+        centroids = weighted / np.where(total > 0, total, 1.0)[:, None]
+        for index in np.flatnonzero(~(total > 0)):        # no length: the points' mean, as Loop.centroid
+            centroids[index] = moved[index].points.mean(axis=0)
+        return moved, centroids
+
+
 def _chain(neighbours: np.ndarray) -> list[tuple[np.ndarray, bool]]:
     """Order the nodes of a graph of maximum degree two into chains.
 
@@ -191,21 +260,23 @@ def isocontour_loops(
     uses = np.bincount(incidence_node, minlength=node_count)
     usable = uses[incidence_node] <= 2                   # a non-manifold edge breaks the chain
     segment_ok = usable.reshape(-1, 2).all(axis=1)
+    # each node's (at most two) neighbours, in the order of the segments, and the face of each
+    segments = node_of[segment_ok]
+    ends = segments.ravel()                              # p₀ q₀ p₁ q₁ ...: each segment's two ends
+    sort = np.argsort(ends, kind="stable")
+    node = ends[sort]
+    slot = np.arange(len(node)) - np.searchsorted(node, node)   # 0 for a node's first segment, 1 for its second
     neighbours = np.full((node_count, 2), -1, dtype=np.int64)
-    segment_face = {}
-    fill = np.zeros(node_count, dtype=np.int64)
-    for (p, q), local_face in zip(node_of[segment_ok].tolist(), np.flatnonzero(segment_ok).tolist()):
-        neighbours[p, fill[p]] = q
-        fill[p] += 1
-        neighbours[q, fill[q]] = p
-        fill[q] += 1
-        segment_face[(min(p, q), max(p, q))] = crossing[local_face]
+    neighbour_face = np.full((node_count, 2), -1, dtype=np.int64)
+    neighbours[node, slot] = segments[:, ::-1].ravel()[sort]
+    neighbour_face[node, slot] = np.repeat(crossing[segment_ok], 2)[sort]
     loops = []
     for order, closed in _chain(neighbours):
         if len(order) < 2 or (not closed and not keep_open):
             continue
-        pairs = zip(order.tolist(), np.roll(order, -1).tolist() if closed else order[1:].tolist())
-        crossed_faces = np.asarray([segment_face[(min(p, q), max(p, q))] for p, q in pairs], dtype=np.int64)
+        following = np.roll(order, -1) if closed else order[1:]
+        start = order if closed else order[:-1]
+        crossed_faces = np.where(neighbours[start, 0] == following, neighbour_face[start, 0], neighbour_face[start, 1])
         edges = np.column_stack([node_low[order], node_high[order]])
         loops.append(Loop(points[order], crossed_faces, float(level), closed, None, edges, t[order]))
     loops.sort(key=lambda loop: -loop.girth)
@@ -386,6 +457,7 @@ class Skeleton:
     tip_anchors: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # per node: the loop node a tip lies beyond, −1 if none
     tip_regions: list[np.ndarray | None] = dataclass_field(default_factory=list)                    # per node: a tip's end-band vertices
     tip_bases: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))     # per node: the loop a tip's direction is taken from, −1 if none
+    moving: MovedLoops | None = dataclass_field(default=None, repr=False, compare=False)               # the loops joined for :meth:`moved`, made on the first move
 
     @property
     def diameter(self) -> float:
@@ -399,23 +471,29 @@ class Skeleton:
         weights re-measured, so the diameter is a continuous function of the vertices.
         """
         vertices = np.asarray(vertices, dtype=np.float64)
-        loops = [None if loop is None else loop.moved(vertices) for loop in self.loops]
+        if self.moving is None:
+            self.moving = MovedLoops.of([loop for loop in self.loops if loop is not None])
+        moved, centroids = self.moving.on(vertices)
+        sections = iter(zip(moved, centroids))
+        loops = [None if loop is None else next(sections) for loop in self.loops]
         points = []
-        for node, loop in enumerate(loops):
-            if loop is not None:
-                points.append(loop.centroid)
+        for node, section in enumerate(loops):
+            if section is not None:
+                points.append(section[1])
             elif self.tip_anchors[node] >= 0:
                 base = self.tip_bases[node]
-                points.append(end_point(vertices, loops[self.tip_anchors[node]], self.tip_regions[node],
-                                        None if base < 0 else loops[base]))
+                points.append(end_point(vertices, loops[self.tip_anchors[node]][0], self.tip_regions[node],
+                                        None if base < 0 else loops[base][0]))
             else:
                 points.append(vertices[self.tip_vertices[node]])
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        graph = sparse.triu(self.graph, k=1).tocoo()
-        weights = np.maximum(np.linalg.norm(points[graph.row] - points[graph.col], axis=1), 1e-300)
-        upper = sparse.coo_matrix((weights, (graph.row, graph.col)), shape=self.graph.shape)
-        return Skeleton(points, (upper + upper.T).tocsr(), self.kinds, loops, self.levels, self.tip_vertices,
-                        self.tip_anchors, self.tip_regions, self.tip_bases)
+        # the same graph, its edges' weights re-measured: the CSR pattern is the input's
+        pattern = self.graph.tocsr()
+        rows = np.repeat(np.arange(pattern.shape[0]), np.diff(pattern.indptr))
+        weights = np.maximum(np.linalg.norm(points[rows] - points[pattern.indices], axis=1), 1e-300)
+        graph = sparse.csr_matrix((weights, pattern.indices, pattern.indptr), shape=pattern.shape)
+        return Skeleton(points, graph, self.kinds, [None if section is None else section[0] for section in loops],
+                        self.levels, self.tip_vertices, self.tip_anchors, self.tip_regions, self.tip_bases, self.moving)
 
 
 def end_point(vertices: np.ndarray, anchor: Loop, end_vertices: np.ndarray, base: Loop | None = None) -> np.ndarray:
