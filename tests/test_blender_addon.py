@@ -319,10 +319,11 @@ def test_the_extension_installs_from_its_file_and_runs(tmp_path):
 
 
 class ModalDriver:
-    """Drives the scale operator's invoke/modal code as Blender's event loop would (bpy has no
-    window when headless): real Blender data, a stand-in window manager, workspace and events."""
+    """Drives an operator's invoke/modal code (the scale operator's, or with ``label=True`` Label
+    Regions') as Blender's event loop would (bpy has no window when headless): real Blender data, a
+    stand-in window manager, workspace and events."""
 
-    def __init__(self, **settings):
+    def __init__(self, label: bool = False, **settings):
         from allorules.blender import operators
 
         class Driven(operators._RunsAllorules):
@@ -332,10 +333,19 @@ class ModalDriver:
             def report(self, kinds, text):
                 self.reports.append((set(kinds), text))
 
-        self.operator = Driven()
+        class DrivenLabel(operators._InBackground):
+            begin = operators.ALLORULES_OT_label_regions.begin
+            finish = operators.ALLORULES_OT_label_regions.finish
+            stage = operators.ALLORULES_OT_label_regions.stage
+
+            def report(self, kinds, text):
+                self.reports.append((set(kinds), text))
+
+        self.operator = DrivenLabel() if label else Driven()
         self.operator.reports = []
-        defaults = dict(ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z",
-                        forward="AUTO", regions="DETECT")
+        defaults = dict(up="Z", forward="AUTO") if label else dict(
+            ruleset="quadruped", mass_ratio=1.1, modes=40, posture="RULESET", global_mode=True, up="Z",
+            forward="AUTO", regions="DETECT")
         for key, value in {**defaults, **settings}.items():
             setattr(self.operator, key, value)
         self.status: list = []
@@ -405,3 +415,22 @@ def test_esc_cancels_a_ui_run_and_adds_nothing(blender):
     assert driver.operator.reports == [({'WARNING'}, "allorules: cancelled; nothing was added")]
     assert "allorules: cancelling…" in driver.status and driver.status[-1] is None and driver.timers == []
     assert set(bpy.data.objects) == objects and set(bpy.data.meshes) == meshes
+
+
+def test_label_regions_from_the_ui_runs_in_the_background_and_esc_cancels_it(blender):
+    """Label Regions from the UI finds the regions in the worker thread (at 135k vertices it takes
+    12 s, which froze Blender on the main thread), the status bar saying so; Esc adds nothing."""
+    foal = quadruped_object("Yearling", modifier=False)
+    driver = ModalDriver(label=True)
+    assert driver.run(cancel_at_step=0) == {'CANCELLED'}
+    assert driver.operator.reports == [({'WARNING'}, "allorules: cancelled; nothing was added")]
+    assert len(foal.vertex_groups) == 0 and driver.status[-1] is None and driver.timers == []
+    driver = ModalDriver(label=True)
+    assert driver.run() == {'FINISHED'}
+    shown = [text for text in driver.status if text]
+    assert shown and all(text.startswith(f"allorules: {foal.name}, finding its regions (") and text.endswith("Esc to cancel")
+                         for text in shown)
+    assert driver.status[-1] is None and driver.timers == []
+    assert {"region:head", "region:neck", "region:chest", "region:abdomen", "region:forelimbs",
+            "region:hindlimbs"} <= set(_groups(foal))
+    assert any("region vertex groups added" in text for _, text in driver.operator.reports)

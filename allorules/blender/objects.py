@@ -100,17 +100,24 @@ def read_regions(obj, mesh) -> tuple[np.ndarray, tuple[str, ...]]:
     return labels, names
 
 
-def write_regions(obj, labels: np.ndarray, names) -> list[str]:
-    """Add a vertex group ``region:<name>`` (weight 1) to ``obj`` for each region with vertices;
-    ``labels`` holds one region index per vertex of ``obj``'s own mesh. Refused where the object
-    already has region groups (someone may have painted them). Returns the groups' names."""
+def check_regions_writable(obj, count: int) -> None:
+    """Refuse, before any work, what :func:`write_regions` would refuse for labels of ``count``
+    vertices (those of ``obj``'s evaluated mesh): region groups the object has already (someone may
+    have painted them), modifiers that change its vertices."""
     painted = region_groups(obj)
     if painted:
         raise SegmentationError(f"{obj.name} already has region vertex groups ({', '.join(sorted(painted.values()))}); "
                                 "delete them to label it again")
-    if len(labels) != len(obj.data.vertices):
-        raise MeshError(f"{obj.name}: its modifiers change its vertices ({len(obj.data.vertices)} → {len(labels)}); "
+    if count != len(obj.data.vertices):
+        raise MeshError(f"{obj.name}: its modifiers change its vertices ({len(obj.data.vertices)} → {count}); "
                         "label a copy with the modifiers applied, or paint the region groups by hand")
+
+
+def write_regions(obj, labels: np.ndarray, names) -> list[str]:
+    """Add a vertex group ``region:<name>`` (weight 1) to ``obj`` for each region with vertices;
+    ``labels`` holds one region index per vertex of ``obj``'s own mesh. Refused as
+    :func:`check_regions_writable` says. Returns the groups' names."""
+    check_regions_writable(obj, len(labels))
     added = []
     for index, name in enumerate(names):
         members = np.flatnonzero(np.asarray(labels) == index)

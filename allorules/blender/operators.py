@@ -1,16 +1,18 @@
 """The add-on's operators: ``allorules.scale``, ``allorules.gallery``, ``allorules.label_regions`` and
 the panel's x0.5 / x2.
 
-From a script (``EXEC_DEFAULT``) a run completes before the call returns. From the UI
-(``INVOKE_DEFAULT``) it runs in a worker thread (:mod:`allorules.blender.runner`) polled by a
-modal timer: the status bar shows its progress, Esc cancels it, Blender stays responsive. Either
-way, failures become one Blender report with allorules' one-line message; a failed or cancelled
-run adds nothing. Everything allorules does goes through :func:`allorules.blender.adapter.scale_arrays`.
+From a script (``EXEC_DEFAULT``) a run or a labelling completes before the call returns. From the
+UI (``INVOKE_DEFAULT``) it runs in a worker thread (:mod:`allorules.blender.runner`) polled by a
+modal timer (:class:`_InBackground`): the status bar shows its progress, Esc cancels it, Blender
+stays responsive. Either way, failures become one Blender report with allorules' one-line message;
+a failed or cancelled run adds nothing. Everything allorules does goes through
+:mod:`allorules.blender.adapter` (``scale_arrays``, ``label_arrays``).
 """
 # No "from __future__ import annotations": Blender reads the property annotations as objects.
 import json
 import logging
 from dataclasses import dataclass
+from typing import Callable
 
 import bpy
 import numpy as np
@@ -27,6 +29,7 @@ from allorules.blender.objects import (
     SourceMesh,
     add_object,
     beside,
+    check_regions_writable,
     discard,
     frame_axes,
     read_source,
@@ -34,7 +37,7 @@ from allorules.blender.objects import (
 )
 from allorules.blender.results import RunSummary, run_summary
 from allorules.blender.runner import BackgroundRun, Cancelled
-from allorules.errors import AllorulesError
+from allorules.errors import AllorulesError, MeshError
 
 log = logging.getLogger("allorules.blender")
 
@@ -109,7 +112,98 @@ def _poll_animal(cls, context) -> bool:
     return True
 
 
-class _RunsAllorules:
+class _InBackground:
+    """What the operators share: their work runs before the call returns from a script (``execute``)
+    and in a worker thread from the UI (``invoke``, then ``modal`` polls it); either way every
+    failure becomes one report and a failed or cancelled operator adds nothing.
+
+    An operator says what its work is (:meth:`begin`, on the main thread: it reads the Blender data
+    and checks the settings, so that bad settings are refused before any work) and what becomes of
+    its result (:meth:`finish`, on the main thread again)."""
+
+    def begin(self, context) -> tuple[SourceMesh, Callable]:
+        """The Blender data read (a :class:`SourceMesh`, discarded after) and the work: a function of
+        a progress object (``None`` from a script) that touches numpy arrays only."""
+        raise NotImplementedError
+
+    def finish(self, context, source: SourceMesh, result) -> set[str]:
+        raise NotImplementedError
+
+    def stage(self, source: SourceMesh) -> tuple[str, str]:
+        """What the status bar says first (the work's progress says what follows): the stage, what
+        is being done."""
+        return source.object_name, "preparing the mesh"
+
+    def fail(self, error: BaseException) -> set[str]:
+        if isinstance(error, Cancelled):
+            self.report({'WARNING'}, "allorules: cancelled; nothing was added")
+        elif isinstance(error, AllorulesError):
+            self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))
+        else:   # a bug: the traceback goes to the console, the user gets one line
+            log.error("allorules failed", exc_info=(type(error), error, error.__traceback__))
+            self.report({'ERROR'}, f"allorules failed unexpectedly ({type(error).__name__}: {_one_line(error)}); "
+                                   "the console has the details, please report it")
+        return {'CANCELLED'}
+
+    def execute(self, context):
+        source = None
+        try:
+            source, work = self.begin(context)
+            return self.finish(context, source, work(None))
+        except BaseException as error:   # noqa: BLE001 - every failure becomes a report
+            if source is not None:
+                discard(source)
+            if isinstance(error, (KeyboardInterrupt, SystemExit)):
+                raise
+            return self.fail(error)
+
+    def invoke(self, context, event):
+        if context.window is None:        # no UI (background): nothing to keep responsive
+            return self.execute(context)
+        try:
+            source, work = self.begin(context)
+        except AllorulesError as error:
+            return self.fail(error)
+        self._source = source
+        self._run = BackgroundRun(work)
+        self._run.progress.begin(*self.stage(source))
+        self._run.start()
+        manager = context.window_manager
+        self._timer = manager.event_timer_add(0.25, window=context.window)
+        manager.modal_handler_add(self)
+        context.workspace.status_text_set(self._run.status())
+        return {'RUNNING_MODAL'}
+
+    def modal(self, context, event):
+        if event.type == 'ESC' and event.value == 'PRESS':
+            self._run.cancel()
+            context.workspace.status_text_set(self._run.status())
+            return {'RUNNING_MODAL'}
+        if event.type != 'TIMER':
+            return {'PASS_THROUGH'}
+        if not self._run.done:
+            context.workspace.status_text_set(self._run.status())
+            return {'PASS_THROUGH'}
+        context.window_manager.event_timer_remove(self._timer)
+        context.workspace.status_text_set(None)
+        error = Cancelled("cancelled") if self._run.progress.cancelled else self._run.error
+        if error is not None:           # cancelled after the work's last check: its result is dropped too
+            discard(self._source)
+            return self.fail(error)
+        try:
+            return self.finish(context, self._source, self._run.result)
+        except Exception as error:   # noqa: BLE001 - every failure becomes a report
+            return self.fail(error)
+
+    def cancel(self, context):      # Blender closes the operator (file loaded, window closed)
+        self._run.cancel()
+        context.window_manager.event_timer_remove(self._timer)
+        context.workspace.status_text_set(None)
+        self._run.wait(30)
+        discard(self._source)
+
+
+class _RunsAllorules(_InBackground):
     """What the scale and gallery operators share: settings, the two ways to run, error reports."""
 
     ruleset: StringProperty(name="Ruleset", default="quadruped",
@@ -151,26 +245,26 @@ class _RunsAllorules:
                                    posture=settings.posture, global_mode=settings.global_mode)
         return settings
 
-    def work(self, settings: Settings, source: SourceMesh, progress=None) -> list:
+    def _copy_stage(self, source: SourceMesh, index: int) -> str:
         ratios = self.ratios()
+        name = copy_name(source.object_name, ratios[index])
+        return f"{name} ({index + 1} of {len(ratios)})" if len(ratios) > 1 else name
+
+    def stage(self, source: SourceMesh) -> tuple[str, str]:
+        return self._copy_stage(source, 0), "preparing the mesh"
+
+    def work(self, settings: Settings, source: SourceMesh, progress=None) -> list:
         results = []
-        for index, ratio in enumerate(ratios):
+        for index, ratio in enumerate(self.ratios()):
             if progress is not None:
-                progress.begin(f"{copy_name(source.object_name, ratio)} ({index + 1} of {len(ratios)})"
-                               if len(ratios) > 1 else copy_name(source.object_name, ratio))
+                progress.begin(self._copy_stage(source, index))
             results.append(settings.scale(source, ratio, progress))
         return results
 
-    def fail(self, error: BaseException) -> set[str]:
-        if isinstance(error, Cancelled):
-            self.report({'WARNING'}, "allorules: cancelled; nothing was added")
-        elif isinstance(error, AllorulesError):
-            self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))
-        else:   # a bug: the traceback goes to the console, the user gets one line
-            log.error("allorules failed", exc_info=(type(error), error, error.__traceback__))
-            self.report({'ERROR'}, f"allorules failed unexpectedly ({type(error).__name__}: {_one_line(error)}); "
-                                   "the console has the details, please report it")
-        return {'CANCELLED'}
+    def begin(self, context):
+        settings = self.settings()
+        source = read_source(context, context.active_object, copies=len(self.ratios()), regions=settings.painted)
+        return source, lambda progress: self.work(settings, source, progress)
 
     def finish(self, context, source: SourceMesh, results) -> set[str]:
         try:
@@ -186,62 +280,6 @@ class _RunsAllorules:
         for summary in summaries:
             self.report({'INFO'}, RunSummary.from_dict(summary).line())
         return {'FINISHED'}
-
-    def execute(self, context):
-        source = None
-        try:
-            settings = self.settings()
-            source = read_source(context, context.active_object, copies=len(self.ratios()), regions=settings.painted)
-            return self.finish(context, source, self.work(settings, source))
-        except BaseException as error:   # noqa: BLE001 - every failure becomes a report
-            if source is not None:
-                discard(source)
-            if isinstance(error, (KeyboardInterrupt, SystemExit)):
-                raise
-            return self.fail(error)
-
-    def invoke(self, context, event):
-        if context.window is None:        # no UI (background): nothing to keep responsive
-            return self.execute(context)
-        try:
-            settings = self.settings()
-            source = read_source(context, context.active_object, copies=len(self.ratios()), regions=settings.painted)
-        except AllorulesError as error:
-            return self.fail(error)
-        self._source = source
-        self._run = BackgroundRun(lambda progress: self.work(settings, source, progress)).start()
-        manager = context.window_manager
-        self._timer = manager.event_timer_add(0.25, window=context.window)
-        manager.modal_handler_add(self)
-        context.workspace.status_text_set(self._run.status())
-        return {'RUNNING_MODAL'}
-
-    def modal(self, context, event):
-        if event.type == 'ESC' and event.value == 'PRESS':
-            self._run.cancel()
-            context.workspace.status_text_set(self._run.status())
-            return {'RUNNING_MODAL'}
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        if not self._run.done:
-            context.workspace.status_text_set(self._run.status())
-            return {'PASS_THROUGH'}
-        context.window_manager.event_timer_remove(self._timer)
-        context.workspace.status_text_set(None)
-        if self._run.error is not None:
-            discard(self._source)
-            return self.fail(self._run.error)
-        try:
-            return self.finish(context, self._source, self._run.result)
-        except Exception as error:   # noqa: BLE001 - every failure becomes a report
-            return self.fail(error)
-
-    def cancel(self, context):      # Blender closes the operator (file loaded, window closed)
-        self._run.cancel()
-        context.window_manager.event_timer_remove(self._timer)
-        context.workspace.status_text_set(None)
-        self._run.wait(30)
-        discard(self._source)
 
 
 class ALLORULES_OT_scale(_RunsAllorules, bpy.types.Operator):
@@ -287,7 +325,7 @@ class ALLORULES_OT_gallery(_RunsAllorules, bpy.types.Operator):
         ]
 
 
-class ALLORULES_OT_label_regions(bpy.types.Operator):
+class ALLORULES_OT_label_regions(_InBackground, bpy.types.Operator):
     """Find the active animal's regions as a run would and add them to it as vertex groups region:<name>, to check and paint before scaling with Regions set to Vertex groups"""
 
     bl_idname = "allorules.label_regions"
@@ -300,20 +338,32 @@ class ALLORULES_OT_label_regions(bpy.types.Operator):
 
     poll = classmethod(_poll_animal)
 
-    def execute(self, context):
+    def begin(self, context):
         obj = context.active_object
-        source = None
+        source = read_source(context, obj, copies=1)
+        try:   # what would stop the groups being written is refused before the work
+            check_regions_writable(obj, len(source.vertices))
+        except AllorulesError:
+            discard(source)
+            raise
+        up, forward = _directions(self.up, self.forward)
+
+        return source, lambda progress: adapter.label_arrays(source.vertices, source.triangles, up=up, forward=forward)
+
+    def stage(self, source: SourceMesh) -> tuple[str, str]:
+        return source.object_name, "finding its regions"
+
+    def finish(self, context, source: SourceMesh, result) -> set[str]:
+        labels, names, report = result
         try:
-            source = read_source(context, obj, copies=1)
-            up, forward = _directions(self.up, self.forward)
-            labels, names, report = adapter.label_arrays(source.vertices, source.triangles, up=up, forward=forward)
+            obj = bpy.data.objects.get(source.object_name)
+            if obj is None:
+                raise MeshError(f"{source.object_name} was removed while its regions were found; nothing was added")
+            if len(obj.data.vertices) != len(source.vertices):
+                raise MeshError(f"{obj.name}'s mesh changed while its regions were found; run Label Regions again")
             added = write_regions(obj, labels, names)
-        except AllorulesError as error:
-            self.report({'ERROR'}, adapter.in_panel_terms(_one_line(error)))
-            return {'CANCELLED'}
         finally:
-            if source is not None:
-                discard(source)
+            discard(source)
         sure = ", ".join(f"{key} {value:.2f}" for key, value in report.get("confidence", {}).items())
         self.report({'INFO'}, f"{obj.name}: {len(added)} region vertex groups added ({', '.join(added)})"
                               + (f"; confidence {sure}" if sure else "") + "; check them, paint where wrong, "

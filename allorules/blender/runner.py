@@ -50,8 +50,8 @@ class ThreadProgress(RunProgress):
             for key, value in values.items():
                 setattr(self, key, value)
 
-    def begin(self, stage: str) -> None:
-        self._set(stage=stage, step=0, steps=0, detail="preparing the mesh")
+    def begin(self, stage: str, detail: str = "preparing the mesh") -> None:
+        self._set(stage=stage, step=0, steps=0, detail=detail)
 
     def step_started(self, step: int, steps: int) -> None:
         self._set(step=step, steps=steps, detail="starting")
