@@ -238,6 +238,24 @@ def test_skeleton_of_a_bent_tube_follows_the_bend():
     assert result.diameter == pytest.approx(12.0, rel=0.02)
 
 
+def test_a_stack_of_sections_is_each_section_cut_alone():
+    """isocontour_stack (the faces' extents found once) gives at every level the loops of
+    isocontour_loops, point for point, open chains too."""
+    from allorules.measure.sections import isocontour_stack
+
+    vertices, faces = capsule(10.0, 1.0)
+    field = vertices @ np.array([0.3, 0.1, 1.0])
+    levels = np.linspace(field.min(), field.max(), 17)     # the ends included
+    for keep_open in (False, True):
+        for level, loops in zip(levels, isocontour_stack(vertices, faces, field, levels, keep_open=keep_open)):
+            alone = isocontour_loops(vertices, faces, field, level, keep_open=keep_open)
+            assert len(loops) == len(alone)
+            for stacked, single in zip(loops, alone):
+                np.testing.assert_array_equal(stacked.points, single.points)
+                np.testing.assert_array_equal(stacked.faces, single.faces)
+    assert [len(loops) for loops in isocontour_stack(vertices, faces, field, levels[1:-1])] == [1] * 15
+
+
 def test_a_moved_skeleton_is_its_loops_moved_one_by_one_and_follows_a_similarity():
     """Skeleton.moved takes every loop's points and centroid in one pass (a run moves skeletons on
     every trial): the same as each loop moved alone, and under a similarity the skeleton's image."""

@@ -22,6 +22,7 @@ from allorules.measure.sections import (
     Loop,
     area_quantiles,
     isocontour_loops,
+    isocontour_stack,
 )
 from allorules.mesh.geometry import face_areas
 from allorules.mesh.topology import face_parts, submesh
@@ -56,11 +57,12 @@ def _torso_loops(body: Body, region: str, axis: np.ndarray, targets: np.ndarray 
     levels = area_quantiles(part.vertices, part.faces, field, targets)
     cut = _section_piece(body, region, piece)
     cut_field = cut.vertices @ axis
+    # levels at the field's ends are no cross-sections (see area_quantile_levels)
+    inside = [(target, level) for target, level in zip(np.asarray(targets).tolist(), levels.tolist())
+              if field.min() < level < field.max()]
+    stack = isocontour_stack(cut.vertices, cut.faces, cut_field, [level for _, level in inside])
     loops, kept = [], []
-    for target, level in zip(np.asarray(targets).tolist(), levels.tolist()):
-        if not field.min() < level < field.max():   # not a cross-section (see area_quantile_levels)
-            continue
-        found = isocontour_loops(cut.vertices, cut.faces, cut_field, level)
+    for (target, level), found in zip(inside, stack):
         if found and (not check or _trunk_section(body, found[0], axis, level)):
             loops.append(found[0])
             kept.append(target)

@@ -39,6 +39,7 @@ from allorules.measure.sections import (
     area_quantile_levels,
     boundary_loops,
     isocontour_loops,
+    isocontour_stack,
 )
 from allorules.mesh.geometry import affine_misfit, vertex_areas
 
@@ -170,8 +171,7 @@ class Limb:
 def _limb(part: RegionPart, index: int, field: np.ndarray) -> Limb:
     levels = area_quantile_levels(part.vertices, part.faces, field, SECTION_COUNT)
     loops, kept_levels = [], []
-    for level in levels:
-        found = isocontour_loops(part.vertices, part.faces, field, level)
+    for level, found in zip(levels, isocontour_stack(part.vertices, part.faces, field, levels)):
         if found:
             loops.append(found[0])   # the main cross-section (longest loop) at this level
             kept_levels.append(level)

@@ -229,13 +229,36 @@ def isocontour_loops(
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     field = np.asarray(field, dtype=np.float64)
-    above = field[faces] >= level                       # (f, 3)
-    count_above = above.sum(axis=1)
-    crossing = np.flatnonzero((count_above == 1) | (count_above == 2))
+    return _loops_at(vertices, faces, field, level, *_face_extents(field, faces), keep_open)
+
+
+def isocontour_stack(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, levels, *,
+                     keep_open: bool = False) -> list[list[Loop]]:
+    """:func:`isocontour_loops` at each of ``levels`` (the same loops), the faces' extent in the
+    field found once for all of them: what a stack of sections of one mesh costs."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    field = np.asarray(field, dtype=np.float64)
+    lowest, highest = _face_extents(field, faces)
+    return [_loops_at(vertices, faces, field, float(level), lowest, highest, keep_open) for level in levels]
+
+
+def _face_extents(field: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each face's lowest and highest corner value (column by column: min(axis=1) over three
+    columns is several times slower)."""
+    a, b, c = field[faces[:, 0]], field[faces[:, 1]], field[faces[:, 2]]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+
+
+def _loops_at(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray, level: float, lowest: np.ndarray,
+              highest: np.ndarray, keep_open: bool) -> list[Loop]:
+    """The loops of :func:`isocontour_loops`, given each face's lowest and highest corner value."""
+    # a face is crossed where some corner is above the level (≥) and some below
+    crossing = np.flatnonzero((highest >= level) & (lowest < level))
     if len(crossing) == 0:
         return []
     corners = faces[crossing]
-    side = above[crossing]
+    side = field[corners] >= level
     # Edge k of a face joins corner k and corner k+1; exactly two of the three are crossed.
     edge_a = corners
     edge_b = np.roll(corners, -1, axis=1)
@@ -570,8 +593,7 @@ def skeleton(
         levels = area_quantile_levels(vertices, faces, field, count)
     levels = np.sort(np.asarray(levels, dtype=np.float64))
     adjacency = face_adjacency(faces)
-    face_low = field[faces].min(axis=1)
-    face_high = field[faces].max(axis=1)
+    face_low, face_high = _face_extents(field, faces)
 
     points: list[np.ndarray] = []
     kinds: list[str] = []
@@ -581,8 +603,8 @@ def skeleton(
     tip_regions: list[np.ndarray | None] = []
     tip_bases: list[int] = []
     node_faces: list[np.ndarray] = []    # faces each node touches, to find its bands
-    for level in levels:
-        for loop in isocontour_loops(vertices, faces, field, level):
+    for level, found in zip(levels, isocontour_stack(vertices, faces, field, levels)):
+        for loop in found:
             points.append(loop.centroid)
             kinds.append("section")
             node_loops.append(loop)
