@@ -204,7 +204,8 @@ class _InBackground:
 
 
 class _RunsAllorules(_InBackground):
-    """What the scale and gallery operators share: settings, the two ways to run, error reports."""
+    """What the scale and gallery operators share: their settings, their work (one run per mass
+    ratio) and the summary of each object they add."""
 
     ruleset: StringProperty(name="Ruleset", default="quadruped",
                             description="a ruleset name (see the allorules panel) or the path of a ruleset YAML file")
