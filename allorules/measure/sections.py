@@ -105,17 +105,17 @@ class Loop:
 
 
 @dataclass(frozen=True)
-class MovedLoops:
-    """Many loops of one mesh moved together (:meth:`Loop.moved` and :attr:`Loop.centroid` of each,
-    in one pass over numpy arrays): what a skeleton does on every trial of a run.
+class JoinedLoops:
+    """Many closed loops or open chains of one mesh end to end, each point on a mesh edge, so that
+    their points, centroids and areas on new vertices take one pass over numpy arrays: what a run
+    does on every trial (skeletons moved, limb-stress bands measured).
 
-    The loops' points lie end to end, loop k's from ``starts[k]``; a point is
+    Loop k's points are ``starts[k]`` … ``starts[k] + counts[k] − 1``; a point is
     v[edge_start] + weight (v[edge_end] − v[edge_start]) (a boundary's vertex: both ends that
     vertex, weight 0); ``following`` is each point's successor in its loop and ``segment`` whether
-    the segment to it is one (not the closing one of an open chain).
+    the segment to it counts (not the closing one of an open chain).
     """
 
-    loops: tuple[Loop, ...]
     edge_start: np.ndarray
     edge_end: np.ndarray
     weights: np.ndarray
@@ -125,52 +125,65 @@ class MovedLoops:
     segment: np.ndarray
 
     @classmethod
-    def of(cls, loops: list[Loop]) -> "MovedLoops":
-        counts = np.asarray([len(loop.points) for loop in loops], dtype=np.int64)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if len(loops) else counts
-        total = int(counts.sum())
-        following = np.arange(total, dtype=np.int64) + 1
-        segment = np.ones(total, dtype=bool)
+    def of(cls, edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]], closed: list[bool]) -> "JoinedLoops":
+        """From each loop's (edge starts, edge ends, weights) and whether it is closed."""
+        counts = np.asarray([len(weights) for _, _, weights in edges], dtype=np.int64)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if len(edges) else counts
+        following = np.arange(int(counts.sum()), dtype=np.int64) + 1
+        segment = np.ones(len(following), dtype=bool)
         ends = starts + counts - 1
-        closed = np.asarray([loop.closed for loop in loops], dtype=bool)
-        following[ends[counts > 0]] = starts[counts > 0]
-        segment[ends[(counts > 0) & ~closed]] = False
-        pieces = []
-        for loop in loops:
-            if loop.vertex_ids is not None:
-                ids = np.asarray(loop.vertex_ids, dtype=np.int64)
-                pieces.append((ids, ids, np.zeros(len(ids))))
-            elif loop.edges is not None:
-                pieces.append((loop.edges[:, 0], loop.edges[:, 1], np.asarray(loop.weights, dtype=np.float64)))
-            else:
-                raise ValueError("this loop does not know the mesh edges it lies on")
-        join = (lambda k: np.concatenate([piece[k] for piece in pieces])) if pieces else (lambda k: np.zeros(0))
-        return cls(tuple(loops), join(0).astype(np.int64), join(1).astype(np.int64), join(2), starts, counts,
-                   following, segment)
+        present = counts > 0
+        following[ends[present]] = starts[present]
+        segment[ends[present & ~np.asarray(closed, dtype=bool)]] = False
+        join = (lambda k, kind: np.concatenate([piece[k] for piece in edges]).astype(kind)) if edges else \
+            (lambda k, kind: np.zeros(0, dtype=kind))
+        return cls(join(0, np.int64), join(1, np.int64), join(2, np.float64), starts, counts, following, segment)
 
-    def on(self, vertices: np.ndarray) -> tuple[list[Loop], np.ndarray]:
-        """The loops on the mesh with new ``vertices``, and the centroid of each (k, 3)."""
-        vertices = np.asarray(vertices, dtype=np.float64)
+    def points(self, vertices: np.ndarray) -> np.ndarray:
+        """Every loop's points on the mesh with ``vertices``, end to end."""
         start = vertices[self.edge_start]
-        points = start + self.weights[:, None] * (vertices[self.edge_end] - start)
-        moved = [Loop(points[first:first + count], loop.faces, loop.level, loop.closed, loop.vertex_ids,
-                      loop.edges, loop.weights)
-                 for loop, first, count in zip(self.loops, self.starts.tolist(), self.counts.tolist())]
-        if not len(points):
-            return moved, np.zeros((len(moved), 3))
-        # Loop.centroid of each: the segments' midpoints weighted by their lengths
+        return start + self.weights[:, None] * (vertices[self.edge_end] - start)
+
+    def _sums(self, values: np.ndarray) -> np.ndarray:
+        """Per loop, the sum of ``values`` (one row per point); 0 for a loop without points."""
+        sums = np.zeros((len(self.counts),) + values.shape[1:])
+        present = self.counts > 0
+        if present.any():
+            sums[present] = np.add.reduceat(values, self.starts[present], axis=0)
+        return sums
+
+    def centroids(self, points: np.ndarray) -> np.ndarray:
+        """Each loop's :attr:`Loop.centroid`: its segments' midpoints weighted by their lengths (a
+        loop without length: its points' mean)."""
         following = points[self.following]
         lengths = np.where(self.segment, np.linalg.norm(following - points, axis=1), 0.0)
-        present = self.counts > 0
-        firsts = self.starts[present]
-        total = np.zeros(len(moved))
-        weighted = np.zeros((len(moved), 3))
-        total[present] = np.add.reduceat(lengths, firsts)
-        weighted[present] = np.add.reduceat((points + following) * 0.5 * lengths[:, None], firsts, axis=0)
-        centroids = weighted / np.where(total > 0, total, 1.0)[:, None]
-        for index in np.flatnonzero(~(total > 0)):        # no length: the points' mean, as Loop.centroid
-            centroids[index] = moved[index].points.mean(axis=0)
-        return moved, centroids
+        total = self._sums(lengths)
+        centroids = self._sums((points + following) * 0.5 * lengths[:, None]) / np.where(total > 0, total, 1.0)[:, None]
+        for index in np.flatnonzero(~(total > 0)):
+            first = self.starts[index]
+            centroids[index] = points[first:first + self.counts[index]].mean(axis=0)
+        return centroids
+
+    def areas(self, points: np.ndarray) -> np.ndarray:
+        """Each loop's :attr:`Loop.area`, ‖½ Σ (p_k − m) × (p_{k+1} − m)‖ about its points' mean m."""
+        counts = np.maximum(self.counts, 1)
+        centred = points - np.repeat(self._sums(points) / counts[:, None], self.counts, axis=0)
+        crossed = np.where(self.segment[:, None], np.cross(centred, centred[self.following]), 0.0)
+        return np.linalg.norm(0.5 * self._sums(crossed), axis=1)
+
+
+def _joined(loops: list[Loop]) -> JoinedLoops:
+    """``loops`` (isocontours on mesh edges, or mesh boundaries on vertices) as :class:`JoinedLoops`."""
+    edges = []
+    for loop in loops:
+        if loop.vertex_ids is not None:
+            ids = np.asarray(loop.vertex_ids, dtype=np.int64)
+            edges.append((ids, ids, np.zeros(len(ids))))
+        elif loop.edges is not None:
+            edges.append((loop.edges[:, 0], loop.edges[:, 1], np.asarray(loop.weights, dtype=np.float64)))
+        else:
+            raise ValueError("this loop does not know the mesh edges it lies on")
+    return JoinedLoops.of(edges, [loop.closed for loop in loops])
 
 
 def _chain(neighbours: np.ndarray) -> list[tuple[np.ndarray, bool]]:
@@ -480,7 +493,7 @@ class Skeleton:
     tip_anchors: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # per node: the loop node a tip lies beyond, −1 if none
     tip_regions: list[np.ndarray | None] = dataclass_field(default_factory=list)                    # per node: a tip's end-band vertices
     tip_bases: np.ndarray = dataclass_field(default_factory=lambda: np.zeros(0, dtype=np.int64))     # per node: the loop a tip's direction is taken from, −1 if none
-    moving: MovedLoops | None = dataclass_field(default=None, repr=False, compare=False)               # the loops joined for :meth:`moved`, made on the first move
+    moving: JoinedLoops | None = dataclass_field(default=None, repr=False, compare=False)              # the loops joined for :meth:`moved`, made on the first move
 
     @property
     def diameter(self) -> float:
@@ -495,10 +508,19 @@ class Skeleton:
         """
         vertices = np.asarray(vertices, dtype=np.float64)
         if self.moving is None:
-            self.moving = MovedLoops.of([loop for loop in self.loops if loop is not None])
-        moved, centroids = self.moving.on(vertices)
-        sections = iter(zip(moved, centroids))
-        loops = [None if loop is None else next(sections) for loop in self.loops]
+            self.moving = _joined([loop for loop in self.loops if loop is not None])
+        joined = self.moving
+        moved_points = joined.points(vertices)
+        centroids = iter(joined.centroids(moved_points))
+        firsts = iter(zip(joined.starts.tolist(), joined.counts.tolist()))
+        loops = []
+        for loop in self.loops:      # (the loop on the new vertices, its centroid), None for a tip
+            if loop is None:
+                loops.append(None)
+                continue
+            first, count = next(firsts)
+            loops.append((Loop(moved_points[first:first + count], loop.faces, loop.level, loop.closed, loop.vertex_ids,
+                               loop.edges, loop.weights), next(centroids)))
         points = []
         for node, section in enumerate(loops):
             if section is not None:

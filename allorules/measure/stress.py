@@ -15,6 +15,7 @@ from allorules.measure.cache import measured
 from allorules.measure.limbs import Section, limb_sections
 from allorules.measure.mass import body_mass
 from allorules.measure.parts import LIMB_REGIONS
+from allorules.measure.sections import JoinedLoops
 
 
 @dataclass(frozen=True)
@@ -104,30 +105,13 @@ class StressGauge:
         return cls(tuple(bands))
 
     @cached_property
-    def _joined(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Every band's edges and parameters end to end, where each band starts, and each point's
-        successor within its own band (the last point's is its band's first)."""
-        counts = np.asarray([len(band.t) for band in self.bands], dtype=np.int64)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-        following = np.arange(int(counts.sum()), dtype=np.int64) + 1
-        following[starts + counts - 1] = starts
-        return (np.concatenate([band.edge_start for band in self.bands]),
-                np.concatenate([band.edge_end for band in self.bands]),
-                np.concatenate([band.t for band in self.bands]), starts, following)
+    def _joined(self) -> JoinedLoops:
+        return JoinedLoops.of([(band.edge_start, band.edge_end, band.t) for band in self.bands], [True] * len(self.bands))
 
     def areas(self, vertices: np.ndarray) -> np.ndarray:
         """Every band's area (:meth:`MaterialBand.area`), all bands at once: a run measures them on
         every trial."""
-        if not self.bands:
-            return np.zeros(0)
-        edge_start, edge_end, t, starts, following = self._joined
-        vertices = np.asarray(vertices)
-        start = vertices[edge_start]
-        points = start + t[:, None] * (vertices[edge_end] - start)
-        counts = np.diff(np.append(starts, len(points)))
-        centred = points - np.repeat(np.add.reduceat(points, starts, axis=0) / counts[:, None], counts, axis=0)
-        vector_area = 0.5 * np.add.reduceat(np.cross(centred, centred[following]), starts, axis=0)
-        return np.linalg.norm(vector_area, axis=1)
+        return self._joined.areas(self._joined.points(np.asarray(vertices)))
 
     def area(self, vertices: np.ndarray) -> float:
         return float(np.min(self.areas(vertices)))
