@@ -43,11 +43,14 @@ class PluginError(AllorulesError):
 
 
 class ScalingError(AllorulesError):
-    """A scaling run did not reach its targets. ``closest`` holds the best result reached, if any."""
+    """A scaling run did not reach its targets. ``closest`` holds the best result reached, if any;
+    ``run``, where the run pipeline stopped, the whole run as far as it went (its report and picture
+    can still be written: ``allorules.runs.pipeline.Run``)."""
 
-    def __init__(self, message: str, closest: Any = None):
+    def __init__(self, message: str, closest: Any = None, run: Any = None):
         super().__init__(message)
         self.closest = closest
+        self.run = run
 
 
 @dataclass

@@ -138,6 +138,59 @@ def test_the_last_step_is_solved_again_for_what_its_output_misses(animal, regist
     assert not unrefitted.converged and unrefitted.mass_ratio > 2.04
 
 
+def test_a_last_step_refit_that_cannot_be_measured_keeps_the_steps_solution(animal, registry, monkeypatch):
+    """The last step solved again for its output's misses may land where a measure fails (the bull
+    386 at ×0.5: its refit's chest had no closed section behind the forelimbs, and the command
+    ended with that one line, no report, where the step's own solution was measured and
+    reported). Such a refit is not kept: the run ends on the step's solution, and says so."""
+    from allorules.errors import MeasurementError
+    from allorules.runs import ruleset_run
+
+    settled = ruleset_run._settled
+    lasts = []
+
+    def swollen(start, solution, posture, last, held, isometric):
+        body = settled(start, solution, posture, last, held, isometric)
+        if not last:
+            return body
+        lasts.append(1)
+        if len(lasts) > 1:      # the refit's output
+            raise MeasurementError("no closed section around the chest behind the forelimbs")
+        centre = body.vertices.mean(axis=0)
+        return body.with_vertices(centre + 1.01 * (body.vertices - centre))
+
+    monkeypatch.setattr(ruleset_run, "_settled", swollen)
+    result = _run(animal, registry, load_ruleset("quadruped", registry), 1.21)
+    assert len(lasts) == 2                                     # the refit was made, and not kept
+    assert result.mass_ratio == pytest.approx(1.21 * 1.01 ** 3, rel=0.005)   # the swollen step's output
+    assert len(result.steps) == 2
+
+
+def test_a_step_whose_output_cannot_be_measured_stops_the_run_with_its_report(animal, registry, monkeypatch):
+    """A step's output that a measure fails on ends the run as a step that cannot be solved does:
+    a ScalingError naming the step, whose ``closest`` is the run judged on the last output measured
+    (the command writes its report), not a bare measuring error with nothing written."""
+    from allorules.errors import MeasurementError
+    from allorules.runs import ruleset_run
+
+    settled = ruleset_run._settled
+    calls = []
+
+    def failing(start, solution, posture, last, held, isometric):
+        calls.append(1)
+        if len(calls) == 2:
+            raise MeasurementError("volume of region 'horns' could not be determined")
+        return settled(start, solution, posture, last, held, isometric)
+
+    monkeypatch.setattr(ruleset_run, "_settled", failing)
+    with pytest.raises(ScalingError, match="step 2 of 2: its output could not be measured: volume") as caught:
+        _run(animal, registry, load_ruleset("quadruped", registry), 1.21)
+    closest = caught.value.closest
+    assert isinstance(closest, BiologyScalingResult) and not closest.converged
+    assert len(closest.steps) == 1 and closest.messages[0].startswith("step 2 of 2")
+    assert closest.mass_ratio == pytest.approx(1.1, rel=0.01)   # judged on step 1's output
+
+
 @pytest.mark.slow
 def test_a_stretched_run_reports_its_trunk_and_is_refused_beyond_the_tolerance(animal, registry, monkeypatch):
     """solver.trunk_stretch: on adds δ to every step; the run's verdict checks the trunk's length

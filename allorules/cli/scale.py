@@ -234,11 +234,7 @@ def run(arguments: argparse.Namespace) -> int:
                                   use_cache=not arguments.no_cache, progress=run_progress("scaling steps"),
                                   placement=arguments.placement, working_vertices=arguments.working_vertices)
     except ScalingError as error:
-        if arguments.report:
-            closest = error.closest
-            report = closest.as_dict() if hasattr(closest, "as_dict") and hasattr(closest, "body") else \
-                {"converged": False}
-            write_report(arguments.report, {"input": str(arguments.mesh), **report, "error": str(error)})
+        _keep_what_a_stopped_run_reached(arguments, output, error)
         raise
     report = result_run.report()
     report["output"] = str(output)
@@ -271,6 +267,31 @@ def run(arguments: argparse.Namespace) -> int:
     if written is not None and hasattr(scaling, "ruleset"):
         print(f"wrote {written}")
     return 0
+
+
+def _keep_what_a_stopped_run_reached(arguments: argparse.Namespace, output: Path, error: ScalingError) -> None:
+    """A run a step stopped still leaves what there is to look at (issue 18 §4): its report, its
+    picture, and with --keep-unconverged the mesh it reached, under the .unconverged name."""
+    from allorules.files import unconverged_path
+    from allorules.runs import pipeline
+
+    stopped = error.run       # the run as far as it went (pipeline.run), where a step stopped it
+    kept = unconverged_path(output) if stopped is not None and arguments.keep_unconverged else None
+    if kept is not None:
+        pipeline.save_output(stopped, kept, overwrite=arguments.force)
+        log.warning("the run stopped; the mesh it reached was written to %s (NOT the requested %s)", kept, output)
+    if arguments.png and stopped is not None:
+        pipeline.save_picture(stopped, arguments.png, output_name=kept.name if kept else f"{output.name} (stopped)")
+        log.info("wrote %s", arguments.png)
+    if arguments.report:
+        if stopped is not None:
+            report = stopped.report()
+        elif hasattr(error.closest, "as_dict") and hasattr(error.closest, "body"):
+            report = error.closest.as_dict()
+        else:
+            report = {"converged": False}
+        write_report(arguments.report, {"input": str(arguments.mesh), **report, "error": str(error),
+                                        "output": None if kept is None else str(kept)})
 
 
 # ---------------------------------------------------------------------------------------------

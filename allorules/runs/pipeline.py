@@ -667,10 +667,18 @@ def run(
         body = label_working(prepared, work, registry=registry, segmenter=segmenter or (ruleset.segmenter if ruleset
                              else None), labels=labels, given=given, up=up, forward=forward,
                              regions=wanted_regions(ruleset))
-    result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
+    labels_file = Path(labels) if isinstance(labels, (str, Path)) else None
+    try:
+        result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
+    except ScalingError as error:
+        if isinstance(error.closest, BiologyScalingResult) and error.run is None:
+            # a run that stopped at a step: what it reached, placed, goes with the error, so that a
+            # front end can still write its report and its picture (issue 18 §4)
+            reached, placed = place(body, error.closest, placement)
+            error.run = Run(prepared, body, scaling, reached, labels_file, placed, None if work.binding is None else work)
+        raise
     result, placed = place(body, result, placement)
-    return Run(prepared, body, scaling, result, Path(labels) if isinstance(labels, (str, Path)) else None, placed,
-               None if work.binding is None else work)
+    return Run(prepared, body, scaling, result, labels_file, placed, None if work.binding is None else work)
 
 
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:

@@ -40,11 +40,17 @@ import logging
 import math
 import time
 from dataclasses import replace
+from typing import NoReturn
 
 import numpy as np
 
 from allorules.body import Body
-from allorules.errors import AllorulesError, ScalingError, SegmentationError
+from allorules.errors import (
+    AllorulesError,
+    MeasurementError,
+    ScalingError,
+    SegmentationError,
+)
 from allorules.measure.length import trunk_length
 from allorules.measure.mass import body_mass, region_mass
 from allorules.measure.parts import TORSO_REGIONS, carry_choices
@@ -234,43 +240,47 @@ def scale_with_ruleset(
                 again = time.perf_counter() - before
                 solution = solve(ruleset, basis)
         except ScalingError as error:
-            result.body = current
-            _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
-            result.converged = False
-            message = f"step {index + 1} of {len(ratios)} could not be solved: {error}"
-            result.messages.insert(0, message)     # first: what stopped the run (the misses of its last mesh follow)
-            raise ScalingError(message, closest=result) from None
+            _stop(result, f"step {index + 1} of {len(ratios)} could not be solved: {error}", current, initial, ruleset,
+                  registry, measure, gauge, open_terms, held, stretch)
         basis_age += 1
         # The steps are alike (same r, nearly the same mesh): the next one starts where this one ended.
         jacobian, start = solution.jacobian, solution.variables
         last = index == len(ratios) - 1
-        following = _settled(current, solution, ruleset.solver.posture, last, held, isometric)
-        if last and target != 1.0:
-            # No next step carries the last one's miss forward, and its output, measured afresh
-            # once the legs are turned back, can miss by more than the step did (the donkey 385 at
-            # ×2: the turn alone added 0.8 % to the abdomen's mass): the step is solved again with
-            # its targets moved by that miss, kept while the worst miss shrinks.
-            allowed = _allowed_misses(ruleset, target)
-            for _ in range(LAST_STEP_REFITS):
-                misses = _carried_misses(terms, anchors, reached * ratio, following, measure)
-                worst = _worst_miss(misses, allowed)
-                if worst <= LAST_STEP_MISS:
-                    break
-                moved = {key: corrections[key] * misses[key] for key in corrections}
-                try:
-                    refit = solve(ruleset, basis, moved, solution.variables, solution.jacobian)
-                except ScalingError:
-                    break
-                candidate = _settled(current, refit, ruleset.solver.posture, last, held, isometric)
-                after = _carried_misses(terms, anchors, reached * ratio, candidate, measure)
-                if _worst_miss(after, allowed) >= worst:
-                    break
-                log.debug("last step solved again for its fresh misses %s", {k: round(v, 4) for k, v in misses.items()})
-                solution, following, corrections = refit, candidate, moved
+        try:
+            following = _settled(current, solution, ruleset.solver.posture, last, held, isometric)
+            if last and target != 1.0:
+                # No next step carries the last one's miss forward, and its output, measured afresh
+                # once the legs are turned back, can miss by more than the step did (the donkey 385 at
+                # ×2: the turn alone added 0.8 % to the abdomen's mass): the step is solved again with
+                # its targets moved by that miss, kept while the worst miss shrinks.
+                allowed = _allowed_misses(ruleset, target)
+                for _ in range(LAST_STEP_REFITS):
+                    misses = _carried_misses(terms, anchors, reached * ratio, following, measure)
+                    worst = _worst_miss(misses, allowed)
+                    if worst <= LAST_STEP_MISS:
+                        break
+                    moved = {key: corrections[key] * misses[key] for key in corrections}
+                    try:
+                        refit = solve(ruleset, basis, moved, solution.variables, solution.jacobian)
+                        candidate = _settled(current, refit, ruleset.solver.posture, last, held, isometric)
+                        after = _carried_misses(terms, anchors, reached * ratio, candidate, measure)
+                    except (ScalingError, MeasurementError) as error:
+                        # a refit that cannot be solved or measured (the bull 386 at ×0.5: its
+                        # chest's section lost) leaves the step's solution as it was
+                        log.debug("the last step's refit was not kept: %s", error)
+                        break
+                    if _worst_miss(after, allowed) >= worst:
+                        break
+                    log.debug("last step solved again for its fresh misses %s", {k: round(v, 4) for k, v in misses.items()})
+                    solution, following, corrections = refit, candidate, moved
+            mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
+            stress_out = gauge.stress(following) if gauge else None
+        except MeasurementError as error:
+            _stop(result, f"step {index + 1} of {len(ratios)}: its output could not be measured: {error}", current,
+                  initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
         solved = time.perf_counter()
         mass_in = measure(ruleset.body_mass.measure, current, ruleset.body_mass.region)
-        mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
-        stress_ratio = gauge.stress(following) / gauge.stress(current) if gauge else None
+        stress_ratio = stress_out / gauge.stress(current) if gauge else None
         result.steps.append(RulesetStep(
             target_mass_ratio=ratio, scale=solution.scale, alpha0=solution.alpha0, alphas=solution.alphas,
             residuals=solution.residuals, energy=solution.energy, evaluations=solution.evaluations,
@@ -289,6 +299,18 @@ def scale_with_ruleset(
     result.body = current
     _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretch)
     return result
+
+
+def _stop(result: BiologyScalingResult, message: str, current: Body, initial: Body, ruleset, registry, measure, gauge,
+          open_terms, held: HeldRegions, stretched: bool) -> NoReturn:
+    """End a run that cannot go on: ``result`` judged on ``current`` (the last step's output that
+    could be measured), ``message`` first among its misses, raised as a :class:`ScalingError`
+    whose ``closest`` is that result (its report is written; the first run's stop is the command's)."""
+    result.body = current
+    _finish(result, initial, ruleset, registry, measure, gauge, open_terms, held, stretched)
+    result.converged = False
+    result.messages.insert(0, message)     # first: what stopped the run (the misses of its last mesh follow)
+    raise ScalingError(message, closest=result) from None
 
 
 def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions, isometric: float) -> Body:
