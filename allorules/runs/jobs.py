@@ -129,6 +129,7 @@ def is_finished(job: Job, folder: Path, fingerprint: str) -> bool:
 
 def scale_job(job: Job, folder: Path) -> dict[str, Any]:
     """Run one job through the pipeline (prepare, label, scale) and write its mesh; the report's figures."""
+    from allorules.errors import ScalingError
     from allorules.files import unconverged_path
     from allorules.plugins.registry import registry_for
     from allorules.runs import pipeline
@@ -139,7 +140,12 @@ def scale_job(job: Job, folder: Path) -> dict[str, Any]:
     else:
         ruleset, registry = ruleset_with_plugins(job.ruleset, job.plugins)
         scaling = pipeline.RulesetScaling(ruleset, job.ratio)
-    run = pipeline.run(job.mesh, scaling, registry=registry, labels=job.segmentation, modes=job.modes)
+    try:
+        run = pipeline.run(job.mesh, scaling, registry=registry, labels=job.segmentation, modes=job.modes)
+    except ScalingError as error:
+        if error.run is None:
+            raise
+        run = error.run     # a run a step stopped is kept as one that missed: its mesh, its figures
     # a run that missed its targets is written under the unconverged name only, and the job fails
     # saying where (as `allorules scale --keep-unconverged`): a batch left alone must not leave a
     # mesh that looks done
