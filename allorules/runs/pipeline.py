@@ -32,7 +32,12 @@ import numpy as np
 
 from allorules import __version__
 from allorules.body import Body, Labelling
-from allorules.errors import MeasurementError, ScalingError, SegmentationError
+from allorules.errors import (
+    AllorulesError,
+    MeasurementError,
+    ScalingError,
+    SegmentationError,
+)
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
 from allorules.measure.quality import QualityReport, flipped_faces, quality_report
@@ -674,7 +679,10 @@ def run(
         if isinstance(error.closest, BiologyScalingResult) and error.run is None:
             # a run that stopped at a step: what it reached, placed, goes with the error, so that a
             # front end can still write its report and its picture (issue 18 §4)
-            reached, placed = place(body, error.closest, placement)
+            try:
+                reached, placed = place(body, error.closest, placement)
+            except AllorulesError:
+                raise error from None       # what stopped the run is what the user is told
             error.run = Run(prepared, body, scaling, reached, labels_file, placed, None if work.binding is None else work)
         raise
     result, placed = place(body, result, placement)
