@@ -340,6 +340,16 @@ def test_labels_files_keep_every_region_and_the_labelling(tmp_path, posed):
     assert back.region_names == labelled.region_names
     np.testing.assert_array_equal(back.labels, labelled.labels)
     assert back.labelling.confidence == pytest.approx(labelled.labelling.confidence)
+    # the labeller's frame goes with the labels, so a body labelled from the file is measured along
+    # the same axes (without it, the torso's principal axis: the giraffe 390's output at ×0.5
+    # measured with its input's labels gave a heart-girth exponent 0.152 off its run's)
+    np.testing.assert_allclose(back.frame.up, labelled.frame.up)
+    np.testing.assert_allclose(back.frame.forward, labelled.frame.forward)
+    for frame in ({"up": [0, 1, 0], "forward": [0, 2, 0]}, {"up": [0, 1], "forward": [1, 0, 0]}, "up", None,
+                  {"up": [0, float("nan"), 1], "forward": [1, 0, 0]}):
+        document["frame"] = frame            # a malformed frame is ignored: the axes come from the regions
+        path.write_text(json.dumps(document))
+        assert read_labels(path, body).frame is None
     # an older file (no labelling) still reads; the generator's file keeps its tail
     old = tmp_path / "old.json"
     old.write_text(json.dumps({"format": "allorules-labels", "version": 1, "regions": list(animal.region_names),

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from allorules.cli import main
@@ -67,3 +68,26 @@ def test_a_run_stopped_at_a_step_still_writes_its_report_and_picture(tmp_path, m
     assert "quality" in data and data["output"] == str(tmp_path / "big.unconverged.obj")
     assert picture.stat().st_size > 5_000
     assert (tmp_path / "big.unconverged.obj").exists() and not output.exists()
+
+
+def test_measuring_with_a_labels_file_measures_as_the_labeller_did(tmp_path, capsys):
+    """`allorules segment` then `allorules measure --segmentation` (how an output is checked with its
+    input's regions) measures what the automatic labelling measures: the labels file keeps the
+    labeller's frame, so the torso is measured along the same axis."""
+    import json
+
+    from allorules.mesh.quadruped import generate_quadruped
+
+    source, labels = tmp_path / "horse.obj", tmp_path / "horse.labels.json"
+    horse = generate_quadruped("horse", vertices=3000, pose="walk")
+    trimesh.Trimesh(horse.vertices, horse.faces, process=False).export(source)
+    assert main(["segment", str(source), "-o", str(labels)]) == 0
+    capsys.readouterr()
+    assert main(["measure", str(source), "--json"]) == 0
+    automatic = json.loads(capsys.readouterr().out)
+    assert main(["measure", str(source), "--json", "--segmentation", str(labels)]) == 0
+    from_file = json.loads(capsys.readouterr().out)
+    for direction in ("up", "forward"):
+        assert from_file["frame"][direction] == pytest.approx(automatic["frame"][direction])
+    for ours, theirs in zip(from_file["rules"], automatic["rules"]):
+        assert ours["value"] == pytest.approx(theirs["value"], rel=1e-9), ours["id"]

@@ -6,6 +6,8 @@
        "regions": ["head", "neck", ...], "labels": [0, 0, 3, ..., -1]}
 
   ``labels[i]`` indexes ``regions``; ``-1`` means unlabelled. The generator's CLI writes the same.
+  Optional: ``labelling`` (who labelled it, how sure) and ``frame`` (``{"up": [x, y, z],
+  "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels).
 * **Princeton segmentation benchmark ``.seg``**: one integer per line, one line per FACE, in face
   order; the integer is the face's segment. Faces get the majority label of their three vertices
   (:func:`face_labels_from_vertices`); vertices get the area-weighted majority of their faces
@@ -30,7 +32,7 @@ import numpy as np
 import scipy.sparse as sparse
 import yaml
 
-from allorules.body import UNLABELLED, Body, Labelling
+from allorules.body import UNLABELLED, Body, Frame, Labelling
 from allorules.errors import RulesetError, SegmentationError, SourceLocation
 from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
@@ -58,6 +60,9 @@ def write_labels(path: str | Path, body: Body) -> None:
     }
     if body.labelling is not None:   # who labelled it and how sure it was (optional when read)
         document["labelling"] = body.labelling.as_dict()
+    if body.frame is not None:       # the animal's up and forward the labeller found (optional when read)
+        document["frame"] = {"up": [float(value) for value in body.frame.up],
+                             "forward": [float(value) for value in body.frame.forward]}
     atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
 
 
@@ -93,7 +98,8 @@ def read_labels(path: str | Path, body: Body) -> Body:
             f"{path}: label {int(labels[bad][0])} at vertex {int(np.flatnonzero(bad)[0])} is not a region index "
             f"(0 … {len(regions) - 1}, or -1 for unlabelled)"
         )
-    return body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")))
+    return body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")),
+                            _read_frame(document.get("frame")))
 
 
 def _read_labelling(value) -> Labelling | None:
@@ -105,6 +111,24 @@ def _read_labelling(value) -> Labelling | None:
     return Labelling(value["source"], {str(key): float(number) for key, number in confidence.items()
                                        if isinstance(number, (int, float)) and not isinstance(number, bool)},
                      tuple(str(note) for note in notes))
+
+
+def _read_frame(value) -> Frame | None:
+    """The optional ``frame`` of a labels file: the body's up and forward as the labeller found them,
+    so that a body labelled from the file is measured along the same axes as the labeller's (older
+    files have none; a malformed one is ignored, and the axes come from the regions)."""
+    if not isinstance(value, dict):
+        return None
+    try:
+        up, forward = (np.asarray(value[key], dtype=float) for key in ("up", "forward"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if up.shape != (3,) or forward.shape != (3,) or not (np.all(np.isfinite(up)) and np.all(np.isfinite(forward))):
+        return None
+    up_length, forward_length = np.linalg.norm(up), np.linalg.norm(forward)
+    if min(up_length, forward_length) == 0 or np.linalg.norm(np.cross(up, forward)) < 1e-6 * up_length * forward_length:
+        return None
+    return Frame(up=up / up_length, forward=forward / forward_length)
 
 
 # ---------------------------------------------------------------- face <-> vertex
