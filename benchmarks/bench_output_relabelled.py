@@ -1,0 +1,88 @@
+"""A run's outputs measured as an outside check might: with the input's labels, and labelled afresh.
+
+Run: .venv/bin/python benchmarks/bench_output_relabelled.py GALLERY_OUT
+
+GALLERY_OUT is a folder written by ``benchmarks/gallery_real_animals.py`` (NAME-xR.obj and
+NAME-xR.json per run). For every converged run, the input (from ``../shared/meshes``) and the output
+are measured with ``allorules measure --json`` twice: with the input's labels (``allorules
+segment`` on the input; the output keeps the input's vertices in their order) and each labelled
+afresh. Prints, per run, each rule's achieved exponent both ways against its target, and the head's
+vertex count each way. Record what it says in docs/measurements.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+ALLORULES = Path(sys.executable).parent / "allorules"
+
+
+def source(name: str) -> Path:
+    """The shared mesh a gallery run named ``name`` scaled."""
+    return SHARED / "psb-fourleg" / f"{name[4:]}.off" if name.startswith("psb-") else SHARED / f"{name}.obj"
+
+
+def measure(mesh: Path, labels: Path | None = None) -> dict[str, float] | None:
+    """Each rule's quantity of ``mesh`` (labelled from ``labels``, else afresh), or None on a refusal."""
+    command = [str(ALLORULES), "measure", str(mesh), "--json"] + (["--segmentation", str(labels)] if labels else [])
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        return None
+    document = json.loads(done.stdout)
+    return {rule["id"]: rule["value"] for rule in document["rules"]}
+
+
+def segment(mesh: Path, labels: Path) -> dict | None:
+    """The labels ``allorules segment`` gives ``mesh``, written to ``labels``."""
+    done = subprocess.run([str(ALLORULES), "segment", str(mesh), "-o", str(labels), "--force"], capture_output=True,
+                          text=True)
+    return json.loads(labels.read_text()) if done.returncode == 0 else None
+
+
+def exponents(before: dict[str, float], after: dict[str, float], ratio: float) -> dict[str, float]:
+    return {rule: math.log(after[rule] / before[rule]) / math.log(ratio) for rule in before}
+
+
+def head_count(labels: dict | None) -> int | None:
+    if labels is None or "head" not in labels["regions"]:
+        return None
+    return sum(1 for label in labels["labels"] if label == labels["regions"].index("head"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("gallery", type=Path)
+    arguments = parser.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        for report_path in sorted(arguments.gallery.glob("*-x*.json")):
+            name, ratio = report_path.stem.rsplit("-x", 1)
+            report, output = json.loads(report_path.read_text()), report_path.with_suffix(".obj")
+            if not report.get("converged") or not output.exists():
+                print(f"{report_path.stem}: not converged, not measured")
+                continue
+            input_labels, output_labels = folder / f"{name}.labels.json", folder / f"{report_path.stem}.labels.json"
+            labelled_in, labelled_out = segment(source(name), input_labels), segment(output, output_labels)
+            measured = {
+                "input's labels": (measure(source(name), input_labels), measure(output, input_labels)),
+                "afresh": (measure(source(name)), measure(output)),
+            }
+            targets = {rule["id"]: rule["exponent"] for rule in report["rules"]}
+            print(f"{report_path.stem}: head {head_count(labelled_in)} vertices as it comes, "
+                  f"{head_count(labelled_out)} on the output labelled afresh")
+            for how, (before, after) in measured.items():
+                if before is None or after is None:
+                    print(f"  {how}: could not be measured")
+                    continue
+                errors = {rule: value - targets[rule] for rule, value in exponents(before, after, float(ratio)).items()}
+                print(f"  {how}: " + ", ".join(f"{rule} {error:+.3f}" for rule, error in errors.items()))
+
+
+if __name__ == "__main__":
+    main()
