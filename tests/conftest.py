@@ -1,4 +1,5 @@
-"""Shared fixtures: an isolated basis cache, the real meshes folder (skipped where absent)."""
+"""Shared fixtures: an isolated basis cache, the real meshes folder (skipped where absent), a run
+whose second step's output cannot be measured."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -31,3 +32,24 @@ def generated_horse():
     from allorules.mesh.quadruped import generate_quadruped
 
     return generate_quadruped("horse", 3000)
+
+
+UNMEASURABLE = "no closed section around the chest behind the forelimbs"
+
+
+@pytest.fixture
+def second_output_unmeasurable(monkeypatch):
+    """Ruleset runs whose second step's output a measure fails on (``MeasurementError(UNMEASURABLE)``
+    where the run settles it), as the bull 386's refit at ×0.5 did: for the ways a stopped run ends."""
+    from allorules.errors import MeasurementError
+    from allorules.runs import ruleset_run
+
+    settled, calls = ruleset_run._settled, []
+
+    def failing(*arguments):
+        calls.append(1)
+        if len(calls) == 2:
+            raise MeasurementError(UNMEASURABLE)
+        return settled(*arguments)
+
+    monkeypatch.setattr(ruleset_run, "_settled", failing)

@@ -231,26 +231,16 @@ def test_a_job_that_misses_its_targets_fails_and_writes_only_the_unconverged_mes
     assert "0 done, 1 failed, 0 not run" in (tmp_path / "out" / "summary.md").read_text()
 
 
-def test_a_job_a_step_stops_keeps_its_mesh_and_figures_as_one_that_missed(inputs, tmp_path, monkeypatch):
+def test_a_job_a_step_stops_keeps_its_mesh_and_figures_as_one_that_missed(inputs, tmp_path,
+                                                                          second_output_unmeasurable):
     """A job whose run a step stops (its output cannot be measured) fails as a missed one does: the
     mesh it reached under the unconverged name, its figures, and the step that stopped it, as
     `allorules scale --keep-unconverged` keeps them; before, the job's report held the error alone."""
-    from allorules.errors import MeasurementError
-    from allorules.runs import ruleset_run
     from allorules.runs.jobs import scale_job
 
     copy_inputs(inputs, tmp_path)
     job = load_manifest(write_manifest(tmp_path, MANIFEST.replace("[global]", "[quadruped]")
                                        .replace("[0.9, 1.1]", "[1.21]"))).jobs()[0]
-    settled, calls = ruleset_run._settled, []
-
-    def failing(*arguments):
-        calls.append(1)
-        if len(calls) == 2:
-            raise MeasurementError("no closed section around the chest behind the forelimbs")
-        return settled(*arguments)
-
-    monkeypatch.setattr(ruleset_run, "_settled", failing)
     folder = tmp_path / "out" / job.id
     folder.mkdir(parents=True)
     figures = scale_job(job, folder)
