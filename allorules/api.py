@@ -74,10 +74,11 @@ def scale_mesh(
 ) -> Run:
     """Scale ``mesh`` (a file, a ``trimesh.Trimesh`` or a :class:`Body`) to ``mass_ratio`` times
     its body mass: biology-aware with ``ruleset`` (a built-in name, a YAML path or a loaded
-    :class:`Ruleset`), or globally with ``ruleset=None``. Regions come from ``labels`` (a file)
-    or the ruleset's segmenter. With ``output``, the result is written in the input's own layout
-    when the run converged (an unconverged run raises :class:`ScalingError` and writes nothing);
-    the input is never overwritten. The output stands where the input stood (``placement=
+    :class:`Ruleset`), or globally with ``ruleset=None``. Regions come from ``labels`` (a file),
+    the mesh file's own labels file beside it (``NAME.labels.json``, where it fits) or the
+    ruleset's segmenter. With ``output``, the result is written in the input's own layout, its
+    regions beside it as ``OUTPUT-NAME.labels.json``, when the run converged (an unconverged run
+    raises :class:`ScalingError` and writes nothing); no input is ever overwritten. The output stands where the input stood (``placement=
     "centroid"``: its centroid in place). A mesh above ``working_vertices`` (default 8,000) is
     scaled on a working mesh and the result carried back to every one of its vertices. Returns the
     :class:`Run` (``run.report()`` is its JSON)."""
@@ -90,9 +91,14 @@ def scale_mesh(
     with protection_scope():
         if output is not None:   # before any work; no input (mesh, labels, ruleset, plugin) is ever replaced
             from allorules.output.export import SUPPORTED_FORMATS
+            from allorules.segment.labels_io import labels_file_beside
 
-            check_outputs([Output.of(output, "output", SUPPORTED_FORMATS)],
-                          {"input mesh": mesh if isinstance(mesh, (str, Path)) else None, "labels file": labels,
+            mesh_file = Path(mesh) if isinstance(mesh, (str, Path)) else None
+            beside = labels_file_beside(mesh_file) if mesh_file is not None and labels is None else None
+            check_outputs([Output.of(output, "output", SUPPORTED_FORMATS),
+                           Output.of(labels_file_beside(output), "the labels file beside the output", (".json",))],
+                          {"input mesh": mesh_file, "labels file": labels,
+                           "input's labels file": beside if beside is not None and beside.is_file() else None,
                            "ruleset": getattr(scaling, "ruleset", None) and scaling.ruleset.path,
                            "plugin": list(plugins)}, force=overwrite, force_option="overwrite=True")
         result = run(mesh, scaling, registry=registry, labels=labels, modes=modes, progress=progress,

@@ -302,7 +302,7 @@ def write_json(path: str | Path, document: Any) -> None:
     atomic_write(path, json.dumps(jsonable(document), indent=2, allow_nan=False) + "\n")
 
 
-def _same_file(first: Path, second: Path) -> bool:
+def same_file(first: Path, second: Path) -> bool:
     if first.resolve() == second.resolve():
         return True
     try:
@@ -325,7 +325,7 @@ def default_output_path(input_path: str | Path, *, suffix: str = "_scaled", exte
     extension = extension or input_path.suffix
     candidate = input_path.with_name(f"{input_path.stem}{suffix}{extension}")
     number = 2
-    while candidate.exists() or _same_file(candidate, input_path):
+    while candidate.exists() or same_file(candidate, input_path):
         candidate = input_path.with_name(f"{input_path.stem}{suffix}-{number}{extension}")
         number += 1
     return candidate

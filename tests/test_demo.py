@@ -31,7 +31,8 @@ def demo(tmp_path_factory):
 def test_demo_writes_every_promised_file(demo):
     names = {path.name for _, path in demo.files}
     runs = [f"{mode}_x{ratio:g}" for mode in ("global", "biology") for ratio in RATIOS]
-    for name in PROMISED + [f"{run}.obj" for run in runs] + [f"{run}.json" for run in runs]:
+    for name in PROMISED + [f"{run}.obj" for run in runs] + [f"{run}.json" for run in runs] + \
+            [f"{run}.labels.json" for run in runs]:
         assert name in names, name
         assert (demo.folder / name).is_file() and (demo.folder / name).stat().st_size > 0, name
     assert sorted(path.name for path in demo.folder.iterdir()) == sorted(names)   # and nothing else (no temp files)

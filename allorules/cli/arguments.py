@@ -1,5 +1,5 @@
 """Options shared by several commands: ``--plugin PATH``, the ``--up``/``--forward`` directions,
-``--working-vertices N`` and ``--png`` (with ``--plot``, its old spelling on ``spectrum``).
+``--relabel``, ``--working-vertices N`` and ``--png`` (with ``--plot``, its old spelling on ``spectrum``).
 """
 from __future__ import annotations
 
@@ -56,6 +56,25 @@ def add_direction_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the body's up direction (feet to back), e.g. +y or 0,0,1; detected when not given")
     parser.add_argument("--forward", type=parse_direction, metavar="DIR",
                         help="the body's forward direction (tail to head), e.g. +x; detected when not given")
+
+
+def add_relabel_argument(parser: argparse.ArgumentParser) -> None:
+    """``--relabel``: ignore the mesh's own labels file (NAME.labels.json beside NAME.EXT)."""
+    parser.add_argument("--relabel", action="store_true",
+                        help="label the mesh afresh even where its own labels file sits beside it (NAME.labels.json, "
+                        "which allorules scale writes beside its output and which is read, when it fits the mesh, "
+                        "unless --segmentation is given; docs/segmentation.md)")
+
+
+def labels_beside_input(arguments: argparse.Namespace) -> str | None:
+    """The input mesh's own labels file the command will read (an input, protected from its
+    outputs), or None (none there, --segmentation given, or --relabel)."""
+    from allorules.segment.labels_io import labels_file_beside
+
+    if getattr(arguments, "segmentation", None) or getattr(arguments, "relabel", False):
+        return None
+    beside = labels_file_beside(arguments.mesh)
+    return str(beside) if beside.is_file() else None
 
 
 def add_working_vertices_argument(parser: argparse.ArgumentParser) -> None:

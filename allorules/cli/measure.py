@@ -1,8 +1,10 @@
 """``allorules measure MESH``: body mass, peak stress and every region quantity a ruleset uses.
 
 The regions come from ``--segmentation FILE`` (an allorules labels ``.json``, or a Princeton
-``.seg`` whose segment ids 0…5 are head, neck, chest, abdomen, forelimbs, hindlimbs), or from the
-ruleset's segmenter (the automatic quadruped labeller by default) when no file is given. Quantities are in the mesh's own units
+``.seg`` whose segment ids 0…5 are head, neck, chest, abdomen, forelimbs, hindlimbs), from the
+mesh's own labels file beside it (``NAME.labels.json``, as ``allorules scale`` writes beside its
+output: an output is measured with the regions and axes its run measured) unless ``--relabel``, or
+from the ruleset's segmenter (the automatic quadruped labeller by default) when no file is given. Quantities are in the mesh's own units
 (mass = volume, density 1); only their ratios mean anything to the scaler.
 """
 from __future__ import annotations
@@ -16,7 +18,9 @@ from pathlib import Path
 from allorules.cli.arguments import (
     add_direction_arguments,
     add_png_argument,
+    add_relabel_argument,
     add_working_vertices_argument,
+    labels_beside_input,
 )
 from allorules.errors import AllorulesError, MeasurementError, SegmentationError
 
@@ -44,6 +48,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     add_png_argument(parser, "the regions in colour and the load-bearing section marked")
     parser.add_argument("--force", action="store_true", help="replace an existing picture (never an input)")
+    add_relabel_argument(parser)
     add_direction_arguments(parser)
     add_plugin_argument(parser)
     add_working_vertices_argument(parser)
@@ -60,8 +65,13 @@ def segmented_body(arguments: argparse.Namespace, ruleset, registry):
     prepared = prepare(arguments.mesh)
     labelled = label_working(prepared, working(prepared, arguments.working_vertices), registry=registry,
                              segmenter=ruleset.segmenter, labels=arguments.segmentation or None, up=arguments.up,
-                             forward=arguments.forward, regions=wanted_regions(ruleset))
-    return labelled, str(arguments.segmentation) if arguments.segmentation else "automatic"
+                             forward=arguments.forward, regions=wanted_regions(ruleset),
+                             labels_beside=not arguments.relabel)
+    if arguments.segmentation:
+        return labelled, str(arguments.segmentation)
+    beside = labels_beside_input(arguments)     # read where it fits the mesh (pipeline.label_working)
+    read = beside is not None and labelled.labelling is not None and labelled.labelling.source.startswith(f"labels file {beside}")
+    return labelled, beside if read else "automatic"
 
 
 def run(arguments: argparse.Namespace) -> int:
@@ -75,7 +85,8 @@ def run(arguments: argparse.Namespace) -> int:
     registry = registry_for(arguments)
     ruleset = load_ruleset(arguments.ruleset, registry)
     check_outputs([Output.of(arguments.png, "--png", PNG)],
-                  {"input mesh": arguments.mesh, "labels file": arguments.segmentation, "ruleset": ruleset.path,
+                  {"input mesh": arguments.mesh, "labels file": arguments.segmentation,
+                   "input's labels file": labels_beside_input(arguments), "ruleset": ruleset.path,
                    "plugin": plugin_files(registry, arguments)}, force=arguments.force)
     body, source = segmented_body(arguments, ruleset, registry)
     missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]

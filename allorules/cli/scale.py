@@ -10,6 +10,10 @@
   ``--arithmetic F`` scales the region's vertices by F instead (for comparison only: it tears).
 
 Every kind goes through :mod:`allorules.runs.pipeline`. Output paths are checked before any work.
+A mesh written with regions has them beside it as ``OUT.labels.json`` (the run's regions on the
+output's vertices, with the run's axes): ``allorules measure OUT.obj`` reads them, so the output is
+measured with the regions the run measured; the input's own ``MESH.labels.json`` is read likewise
+(``--relabel`` labels afresh).
 A run that misses a target exits non-zero and writes NO mesh, only the report (``converged:
 false``), unless ``--keep-unconverged``, which writes the mesh as ``OUT.unconverged.EXT`` with a
 warning, never under the name asked for.
@@ -26,7 +30,9 @@ from allorules.cli.arguments import (
     add_direction_arguments,
     add_plugin_argument,
     add_png_argument,
+    add_relabel_argument,
     add_working_vertices_argument,
+    labels_beside_input,
     plugin_files,
 )
 from allorules.errors import AllorulesError, ScalingError
@@ -86,6 +92,7 @@ def register(subcommands: argparse._SubParsersAction) -> None:
                         "section away from junction and tip)")
     parser.add_argument("--segmentation", metavar="FILE",
                         help="labels file (.json or Princeton .seg) instead of the ruleset's segmenter")
+    add_relabel_argument(parser)
     parser.add_argument("--keep-unconverged", action="store_true",
                         help="write the mesh of a run that missed its targets, as OUT.unconverged.EXT")
     parser.add_argument("--force", action="store_true",
@@ -175,10 +182,11 @@ def _section_choice(text: str | None):
 
 
 def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> Path:
-    """The output mesh, checked with every other output (picture, report, the unconverged name)
-    against every input of the command (allorules.files.check_outputs), before any work."""
+    """The output mesh, checked with every other output (picture, report, the unconverged name, the
+    labels file beside each mesh) against every input of the command (allorules.files.check_outputs), before any work."""
     from allorules.files import JSON, PNG, Output, check_outputs, unconverged_path
     from allorules.output.export import SUPPORTED_FORMATS
+    from allorules.runs.pipeline import RawGlobalScaling, output_labels_path
 
     if not arguments.output:
         raise AllorulesError("give the output mesh with -o OUT (e.g. -o heavier.obj)")
@@ -188,6 +196,10 @@ def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> P
     if arguments.keep_unconverged:
         outputs.append(Output.of(unconverged_path(output),
                                  "--keep-unconverged", SUPPORTED_FORMATS))
+    if not isinstance(scaling, RawGlobalScaling) or arguments.segmentation:
+        # the regions of a run that has them go beside its mesh (pipeline.save_output)
+        outputs += [Output.of(output_labels_path(mesh.path), f"the labels file beside {mesh.option}", JSON)
+                    for mesh in list(outputs) if mesh is not None and mesh.option in ("-o", "--keep-unconverged")]
     check_outputs(outputs, command_inputs(arguments, scaling, registry), force=arguments.force)
     return output
 
@@ -195,7 +207,8 @@ def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> P
 def command_inputs(arguments: argparse.Namespace, scaling=None, registry=None) -> dict:
     """Every file the command reads, by what it is (protected from its outputs)."""
     ruleset = getattr(scaling, "ruleset", None)
-    inputs = {"input mesh": arguments.mesh, "labels file": arguments.segmentation}
+    inputs = {"input mesh": arguments.mesh, "labels file": arguments.segmentation,
+              "input's labels file": labels_beside_input(arguments)}
     if ruleset is not None:
         inputs["ruleset"] = ruleset.path
         inputs["segmenter's file"] = [value for value in ruleset.segmenter.options.values() if isinstance(value, Path)]
@@ -232,7 +245,8 @@ def run(arguments: argparse.Namespace) -> int:
         result_run = pipeline.run(arguments.mesh, scaling, registry=registry, labels=arguments.segmentation or None,
                                   up=arguments.up, forward=arguments.forward, modes=arguments.modes,
                                   use_cache=not arguments.no_cache, progress=run_progress("scaling steps"),
-                                  placement=arguments.placement, working_vertices=arguments.working_vertices)
+                                  placement=arguments.placement, working_vertices=arguments.working_vertices,
+                                  labels_beside=not arguments.relabel)
     except ScalingError as error:
         _keep_what_a_stopped_run_reached(arguments, output, error)
         raise

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from allorules.errors import MeshError
-from allorules.files import _same_file, atomic_path, atomic_write
+from allorules.files import atomic_path, atomic_write, same_file
 from allorules.mesh.geometry import face_normals, vertex_normals
 from allorules.mesh.references import MTLLIB, TEXTURE_MAP, texture_name
 
@@ -112,7 +112,7 @@ def save_mesh(
         raise MeshError(f"{path}: not written, faces refer to vertices that do not exist")
 
     input_path = Path(input_path) if input_path is not None else None
-    if input_path is not None and _same_file(path, input_path) and not overwrite:
+    if input_path is not None and same_file(path, input_path) and not overwrite:
         raise MeshError(f"{path}: this is the input mesh; choose another output name or pass --overwrite")
     if path.exists() and not overwrite:
         raise MeshError(f"{path}: already exists; choose another output name or pass --overwrite")

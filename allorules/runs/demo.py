@@ -5,7 +5,8 @@ the automatic labeller (and says how well they agree with the generator's own re
 it globally (paper §3.1) and biology-aware with the ``quadruped`` ruleset (§3.3) to mass ratios
 0.5 and 2, and writes into a fresh folder:
 
-* ``original.obj`` and one OBJ per run (``global_x0.5.obj``, ``biology_x2.obj``, …);
+* ``original.obj`` and one OBJ per run (``global_x0.5.obj``, ``biology_x2.obj``, …), each with its
+  regions beside it (``biology_x2.labels.json``, read by ``allorules measure``);
 * ``labels.json`` (the automatic labels) and ``regions.png`` (the regions in colour);
 * ``gallery.png`` (rows minified / original / magnified, columns global / biology-aware, every
   animal drawn at the same length, as the paper's Figures 17–18) and ``gallery_true_scale.png``
@@ -315,12 +316,14 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
 
 def _write_run(demo: DemoResult, run: DemoRun, body, force: bool) -> None:
     from allorules.files import write_json
-    from allorules.runs.pipeline import save_output
+    from allorules.runs.pipeline import output_labels_path, save_output
 
     if run.outcome is not None and run.error is None:
         run.mesh = demo.folder / f"{run.name}.obj"
         save_output(run.outcome, run.mesh, overwrite=force)
         demo.files.append((f"{run.name} mesh", run.mesh))
+        if output_labels_path(run.mesh).is_file():      # its regions, for allorules measure
+            demo.files.append((f"{run.name} labels", output_labels_path(run.mesh)))
     run.report = demo.folder / f"{run.name}.json"
     document = {"run": run.name, "mode": MODE_TITLES[run.mode], "mass_ratio": run.ratio,
                 "mesh": run.mesh.name if run.mesh else None, "seconds": run.seconds, "error": run.error,

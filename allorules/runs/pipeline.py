@@ -35,9 +35,11 @@ from allorules.body import Body, Labelling
 from allorules.errors import (
     AllorulesError,
     MeasurementError,
+    OutputError,
     ScalingError,
     SegmentationError,
 )
+from allorules.files import same_file
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
 from allorules.measure.quality import QualityReport, flipped_faces, quality_report
@@ -68,7 +70,13 @@ from allorules.runs.results import (
     trunk_longer,
 )
 from allorules.runs.ruleset_run import scale_with_ruleset
-from allorules.segment.labels_io import read_labels, read_seg
+from allorules.segment.labels_io import (
+    UnsaidMeshError,
+    labels_file_beside,
+    read_labels,
+    read_seg,
+    write_labels,
+)
 from allorules.segment.regions import NEIGHBOUR_REGION, QUADRUPED_REGIONS, fold_regions
 
 log = logging.getLogger("allorules")
@@ -213,11 +221,17 @@ def working(prepared: PreparedMesh, vertices: int | None = None) -> Working:
 def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegistry,
                   segmenter: SegmenterUse | None = None, labels: str | Path | VertexRegions | None = None,
                   given: Body | None = None, up: np.ndarray | None = None, forward: np.ndarray | None = None,
-                  regions: Iterable[str] = QUADRUPED_REGIONS) -> Body:
+                  regions: Iterable[str] = QUADRUPED_REGIONS, labels_beside: bool = True) -> Body:
     """The working body with regions: from a labels file, regions given per input vertex or a
     ``given`` labelled body (all for the user's prepared body, carried across to the working mesh),
-    else from the segmenter on the working mesh itself; regions not among ``regions`` fold into
-    their neighbour."""
+    else (``labels_beside``) from the mesh file's own labels file beside it where it fits the mesh
+    (a run's output measured with the regions the run measured: :func:`save_output`), else from
+    the segmenter on the working mesh itself; regions not among ``regions`` fold into their
+    neighbour."""
+    if labels is None and given is None and labels_beside:
+        given = _labels_beside(prepared)
+        if given is not None and (up is not None or forward is not None):
+            log.warning("--up/--forward are ignored: the regions and axes come from the labels file beside the mesh")
     if labels is None and given is None:
         return label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=regions)
     if isinstance(labels, VertexRegions):
@@ -288,11 +302,31 @@ def label(
     return fold_regions(labelled, tuple(regions))
 
 
-def _read_labels_file(path: Path, body: Body) -> Body:
+def _labels_beside(prepared: PreparedMesh) -> Body | None:
+    """The prepared body labelled from ``NAME.labels.json`` beside its file, where there is one made
+    for this mesh (same faces); one made for another mesh is passed over, saying so."""
+    if prepared.source_path is None:
+        return None
+    path = labels_file_beside(prepared.source_path)
+    if not path.is_file():
+        return None
+    try:
+        labelled = _read_labels_file(path, Body(prepared.vertices, prepared.faces), same_faces=True)
+    except UnsaidMeshError as error:      # never read beside a mesh before: passed over, as then
+        log.info("%s; not read beside the mesh (give it with --segmentation to use it)", error)
+        return None
+    except SegmentationError as error:
+        log.warning("%s; labelling the mesh afresh (give a labels file with --segmentation to use one)", error)
+        return None
+    log.info("regions from %s, beside the mesh (--relabel labels it afresh)", path)
+    return labelled
+
+
+def _read_labels_file(path: Path, body: Body, *, same_faces: bool = False) -> Body:
     if path.suffix.lower() == ".seg":
         labelled = read_seg(path, body, QUADRUPED_REGIONS)
     else:
-        labelled = read_labels(path, body)
+        labelled = read_labels(path, body, same_faces=same_faces)
     source = Labelling(f"labels file {path}")
     if labelled.labelling is not None:   # a labels file written by a segmenter keeps what it said
         source = Labelling(f"labels file {path} ({labelled.labelling.source})", labelled.labelling.confidence,
@@ -652,6 +686,7 @@ def run(
     progress: RunProgress | None = None,
     placement: str = "ground",
     working_vertices: int | None = None,
+    labels_beside: bool = True,
 ) -> Run:
     """Prepare, label, scale and place ``source`` (a mesh file, a ``trimesh.Trimesh`` or a
     :class:`Body`; a labelled ``Body`` keeps its labels). The segmenter is ``segmenter``, else the
@@ -659,7 +694,9 @@ def run(
     :class:`VertexRegions` for the input's vertices) replaces it. ``placement``: ``"ground"`` (the
     output's feet where the input's were) or ``"centroid"``.
     ``working_vertices``: the working mesh's size (default
-    :data:`allorules.mesh.working.WORKING_VERTICES`; a body at or below it is used as it is)."""
+    :data:`allorules.mesh.working.WORKING_VERTICES`; a body at or below it is used as it is).
+    ``labels_beside``: with no ``labels``, a mesh file's own ``NAME.labels.json`` beside it is read
+    where it fits the mesh (:func:`label_working`); ``False`` labels it afresh."""
     registry = registry if registry is not None else registry_for(None)
     check_working_vertices(working_vertices)            # before any work
     ruleset = scaling.ruleset if isinstance(scaling, RulesetScaling) else None
@@ -671,7 +708,7 @@ def run(
     else:
         body = label_working(prepared, work, registry=registry, segmenter=segmenter or (ruleset.segmenter if ruleset
                              else None), labels=labels, given=given, up=up, forward=forward,
-                             regions=wanted_regions(ruleset))
+                             regions=wanted_regions(ruleset), labels_beside=labels_beside)
     labels_file = Path(labels) if isinstance(labels, (str, Path)) else None
     try:
         result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
@@ -690,16 +727,43 @@ def run(
 
 
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:
-    """Write the run's output mesh in the input's own layout (UVs, materials, detached parts kept);
-    the input is never overwritten. ``save_mesh`` says on the log what the export could not carry over."""
+    """Write the run's output mesh in the input's own layout (UVs, materials, detached parts kept)
+    and, where the run had regions, the regions it measured as the output's own labels file beside
+    it (:func:`output_labels_path`), so that the output is measured again with the run's regions and
+    axes, not relabelled as another animal; the input is never overwritten. ``save_mesh`` says on
+    the log what the export could not carry over."""
     prepared = run.prepared
+    labels = output_labels_path(path) if run.body.labels is not None else None
+    if labels is not None:      # checked before anything is written
+        _check_output_labels(run, labels, overwrite)
     if prepared.source is not None:
         saved = save_mesh(path, run.output_vertices(), np.asarray(prepared.source.faces), source=prepared.source,
                           input_path=prepared.source_path, overwrite=overwrite)
     else:
         saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
+    if labels is not None:
+        user = Body(prepared.vertices, prepared.faces)
+        write_labels(labels, run.body if run.working is None else run.working.labels_to_user(run.body, user))
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
+
+
+def output_labels_path(output: str | Path) -> Path:
+    """Where :func:`save_output` writes an output's regions: ``NAME.labels.json`` beside ``NAME.EXT``."""
+    return labels_file_beside(output)
+
+
+def _check_output_labels(run: Run, labels: Path, overwrite: bool) -> None:
+    """An output's labels file never replaces the run's own labels (its labels file, its input's
+    labels file beside it), and another file only with ``overwrite``."""
+    inputs = [run.labels_file] + ([labels_file_beside(run.prepared.source_path)] if run.prepared.source_path else [])
+    for given in inputs:
+        if given is not None and same_file(labels, Path(given)):
+            raise OutputError(f"{labels}: the output's labels file would replace the input's labels "
+                              f"{given}; choose another output name")
+    if labels.exists() and not overwrite:
+        raise OutputError(f"{labels}: already exists (the output's labels file); choose another output name "
+                          "or pass --force")
 
 
 def save_picture(run: Run, path: str | Path, *, output_name: str = "output") -> Path:
@@ -741,4 +805,5 @@ def _independent_check(body: Body, result: ScalingResult) -> dict[str, Any]:
 
 
 __all__ = ["GlobalScaling", "RulesetScaling", "RawGlobalScaling", "LocalScaling", "Scaling", "Run", "prepare",
-           "label", "label_working", "scale", "place", "PLACEMENTS", "working", "Working", "run", "save_output", "save_picture", "wanted_regions"]
+           "label", "label_working", "scale", "place", "PLACEMENTS", "working", "Working", "run", "save_output",
+           "output_labels_path", "save_picture", "wanted_regions"]

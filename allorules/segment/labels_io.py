@@ -6,8 +6,12 @@
        "regions": ["head", "neck", ...], "labels": [0, 0, 3, ..., -1]}
 
   ``labels[i]`` indexes ``regions``; ``-1`` means unlabelled. The generator's CLI writes the same.
-  Optional: ``labelling`` (who labelled it, how sure) and ``frame`` (``{"up": [x, y, z],
-  "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels).
+  Optional: ``labelling`` (who labelled it, how sure), ``frame`` (``{"up": [x, y, z],
+  "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels)
+  and ``faces_sha256`` (the mesh's faces, so that a file is known to be this mesh's: a run's output
+  keeps its input's faces, so its input's labels fit it too).
+  ``NAME.labels.json`` beside ``NAME.EXT`` (:func:`labels_file_beside`) is the mesh's own: ``allorules
+  scale`` writes its output's there, and ``scale`` and ``measure`` read it when it fits the mesh.
 * **Princeton segmentation benchmark ``.seg``**: one integer per line, one line per FACE, in face
   order; the integer is the face's segment. Faces get the majority label of their three vertices
   (:func:`face_labels_from_vertices`); vertices get the area-weighted majority of their faces
@@ -25,7 +29,9 @@ All writers are atomic (temporary file + ``os.replace``).
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +44,15 @@ from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
 from allorules.segment.regions import QUADRUPED_REGIONS
 
+log = logging.getLogger("allorules")
+
 LABELS_FORMAT = "allorules-labels"
 LABELS_VERSION = 1
+
+
+class UnsaidMeshError(SegmentationError):
+    """A labels file that does not say which mesh it was made for (no ``faces_sha256``: written by
+    an older allorules or by hand), where the mesh's own was asked for."""
 
 
 class MergeFileError(SegmentationError, RulesetError):
@@ -47,6 +60,18 @@ class MergeFileError(SegmentationError, RulesetError):
 
 
 # ---------------------------------------------------------------- labels JSON
+
+def labels_file_beside(mesh: str | Path) -> Path:
+    """``NAME.labels.json`` beside ``NAME.EXT``: the mesh's own labels file."""
+    mesh = Path(mesh)
+    return mesh.with_name(mesh.stem + ".labels.json")
+
+
+def faces_fingerprint(faces: np.ndarray) -> str:
+    """SHA-256 of the faces (vertex indices, in order): the same for a mesh and every output of a
+    run on it, which keep its faces and move only its vertices."""
+    return hashlib.sha256(np.ascontiguousarray(faces, dtype="<i8").tobytes()).hexdigest()
+
 
 def write_labels(path: str | Path, body: Body) -> None:
     """Write the body's per-vertex labels as an allorules labels file (JSON)."""
@@ -57,6 +82,7 @@ def write_labels(path: str | Path, body: Body) -> None:
         "version": LABELS_VERSION,
         "regions": list(body.region_names),
         "labels": [int(label) for label in body.labels],
+        "faces_sha256": faces_fingerprint(body.faces),
     }
     if body.labelling is not None:   # who labelled it and how sure it was (optional when read)
         document["labelling"] = body.labelling.as_dict()
@@ -66,8 +92,10 @@ def write_labels(path: str | Path, body: Body) -> None:
     atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
 
 
-def read_labels(path: str | Path, body: Body) -> Body:
-    """The body with the labels of an allorules labels file; checked against the body's vertex count."""
+def read_labels(path: str | Path, body: Body, *, same_faces: bool = False) -> Body:
+    """The body with the labels of an allorules labels file; checked against the body's vertex
+    count and, where the file has them, its faces (another mesh's faces: refused with
+    ``same_faces``, else used with a warning; ``same_faces`` also refuses a file without them)."""
     path = Path(path)
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
@@ -91,6 +119,14 @@ def read_labels(path: str | Path, body: Body) -> Body:
             f"{path}: has {len(labels)} labels but the mesh has {body.vertex_count} vertices; "
             "labels must come from this exact mesh (after the same preparation)"
         )
+    fingerprint = document.get("faces_sha256")
+    if fingerprint != faces_fingerprint(body.faces):
+        if same_faces and fingerprint is None:
+            raise UnsaidMeshError(f"{path}: does not say which mesh it was made for (an older labels file)")
+        if same_faces:
+            raise SegmentationError(f"{path}: made for another mesh (its faces differ)")
+        if fingerprint is not None:
+            log.warning("%s: made for a mesh with other faces (same vertex count); its labels are used as given", path)
     labels = np.asarray(labels, dtype=np.int64)
     bad = (labels < UNLABELLED) | (labels >= len(regions))
     if bad.any():

@@ -1,0 +1,138 @@
+"""An output's own labels file: `allorules scale` writes the run's regions beside the mesh it
+writes (OUT.labels.json), and `measure` / `scale` read a mesh's own labels file where it fits the
+mesh, so that an output is measured with the regions and axes its run measured instead of being
+labelled afresh as another animal (docs/segmentation.md, "A mesh's own labels file")."""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+
+import numpy as np
+import pytest
+
+from allorules.body import Body
+from allorules.cli import main
+from allorules.errors import SegmentationError
+from allorules.mesh.quadruped import generate_quadruped
+from allorules.segment.labels_io import (
+    UnsaidMeshError,
+    faces_fingerprint,
+    labels_file_beside,
+    read_labels,
+)
+
+RATIO = 1.1
+
+
+@pytest.fixture(scope="module")
+def scaled(tmp_path_factory):
+    """A small generated horse as OBJ (no labels beside it) and one converged run of it, ×1.1."""
+    import trimesh
+
+    folder = tmp_path_factory.mktemp("output_labels")
+    horse = generate_quadruped("horse", 1200)
+    trimesh.Trimesh(horse.vertices, horse.faces, process=False).export(folder / "horse.obj")
+    code = main(["scale", str(folder / "horse.obj"), "--mass-ratio", str(RATIO), "--modes", "20",
+                 "-o", str(folder / "big.obj"), "--report", str(folder / "big.json")])
+    assert code == 0
+    return folder
+
+
+def measured(arguments: list[str], capsys, said: list[str] | None = None) -> dict:
+    """``allorules measure ... --json`` as a dict; what it said on stderr appended to ``said``."""
+    capsys.readouterr()
+    assert main(["measure", *arguments, "--json"]) == 0
+    captured = capsys.readouterr()
+    if said is not None:
+        said.append(captured.err)
+    return json.loads(captured.out)
+
+
+def sha256(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_the_output_carries_the_regions_its_run_measured(scaled):
+    import trimesh
+
+    labels = scaled / "big.labels.json"
+    assert labels == labels_file_beside(scaled / "big.obj")
+    document = json.loads(labels.read_text())
+    out = trimesh.load(scaled / "big.obj", process=False)
+    assert document["faces_sha256"] == faces_fingerprint(np.asarray(out.faces))
+    assert len(document["labels"]) == len(out.vertices)
+    report = json.loads((scaled / "big.json").read_text())
+    assert set(document["regions"]) >= {"head", "neck", "chest", "abdomen", "forelimbs", "hindlimbs"}
+    assert set(report["labels"]["regions"]) == set(document["regions"])
+    assert "up" in document["frame"] and "forward" in document["frame"]
+
+
+def test_measuring_the_output_again_gives_the_exponents_its_run_reported(scaled, capsys):
+    """The input labelled afresh and the output with its own labels file: each rule's exponent as
+    the run's report says (a fresh labelling of the output is told apart: --relabel)."""
+    before = measured([str(scaled / "horse.obj")], capsys)
+    after = measured([str(scaled / "big.obj")], capsys)
+    assert before["segmentation"] == "automatic"
+    assert after["segmentation"] == str(scaled / "big.labels.json")
+    report = json.loads((scaled / "big.json").read_text())
+    achieved = {rule["id"]: rule["achieved_exponent"] for rule in report["rules"]}
+    for first, second in zip(before["rules"], after["rules"]):
+        exponent = math.log(second["value"] / first["value"]) / math.log(RATIO)
+        assert exponent == pytest.approx(achieved[first["id"]], abs=0.01), first["id"]
+    assert measured([str(scaled / "big.obj"), "--relabel"], capsys)["segmentation"] == "automatic"
+
+
+def test_a_labels_file_beside_made_for_another_mesh_is_passed_over(scaled, tmp_path, capsys):
+    import shutil
+
+    shutil.copy(scaled / "horse.obj", tmp_path / "horse.obj")
+    other = json.loads((scaled / "big.labels.json").read_text())
+    other["faces_sha256"] = "0" * 64
+    (tmp_path / "horse.labels.json").write_text(json.dumps(other))
+    said: list[str] = []
+    assert measured([str(tmp_path / "horse.obj")], capsys, said)["segmentation"] == "automatic"
+    assert "made for another mesh" in said[0] and "labelling the mesh afresh" in said[0]
+    del other["faces_sha256"]          # an older file: says nothing, and was never read beside a mesh
+    (tmp_path / "horse.labels.json").write_text(json.dumps(other))
+    assert measured([str(tmp_path / "horse.obj")], capsys)["segmentation"] == "automatic"
+    # named, a file is still used as given
+    named = measured([str(tmp_path / "horse.obj"), "--segmentation", str(tmp_path / "horse.labels.json")], capsys)
+    assert named["segmentation"] == str(tmp_path / "horse.labels.json")
+
+
+def test_reading_a_labels_file_checks_its_faces():
+    horse = generate_quadruped("horse", 1200)
+    body = Body(horse.vertices, horse.faces)
+    document = {"format": "allorules-labels", "version": 1, "regions": ["a"], "labels": [0] * len(horse.vertices)}
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "x.labels.json"
+        path.write_text(json.dumps(document))
+        assert read_labels(path, body).labels.sum() == 0          # an older file, named: read
+        with pytest.raises(UnsaidMeshError):
+            read_labels(path, body, same_faces=True)
+        path.write_text(json.dumps({**document, "faces_sha256": faces_fingerprint(horse.faces[::-1])}))
+        with pytest.raises(SegmentationError, match="made for another mesh"):
+            read_labels(path, body, same_faces=True)
+        path.write_text(json.dumps({**document, "faces_sha256": faces_fingerprint(horse.faces)}))
+        assert read_labels(path, body, same_faces=True).region_names == ("a",)
+
+
+def test_the_outputs_labels_file_is_checked_before_the_work(scaled, capsys):
+    """An existing labels file beside -o is refused without --force, the input's own labels file
+    always (here -o big.ply beside big.obj, whose labels file is big.labels.json), before any run;
+    nothing the user has changes."""
+    kept = {path.name: sha256(path) for path in scaled.iterdir()}
+    (scaled / "small.labels.json").write_text("{}")
+    assert main(["scale", str(scaled / "big.obj"), "--mass-ratio", "0.5", "-o", str(scaled / "small.obj")]) != 0
+    assert "small.labels.json" in capsys.readouterr().err
+    assert not (scaled / "small.obj").exists()
+    (scaled / "small.labels.json").unlink()
+    assert main(["scale", str(scaled / "big.obj"), "--mass-ratio", "0.5", "-o", str(scaled / "big.ply"), "--force"]) != 0
+    error = capsys.readouterr().err
+    assert "big.labels.json" in error and "never overwritten" in error
+    assert not (scaled / "big.ply").exists()
+    assert {path.name: sha256(path) for path in scaled.iterdir()} == kept
