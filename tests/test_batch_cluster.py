@@ -23,6 +23,7 @@ distributed = pytest.importorskip("distributed", reason="needs Dask: pip install
 
 from allorules.runs import cluster as cluster_module  # noqa: E402
 from allorules.runs.batch import load_manifest, run_batch  # noqa: E402
+from allorules.segment.labels_io import labels_file_beside  # noqa: E402
 
 pytestmark = pytest.mark.distributed
 
@@ -341,7 +342,8 @@ def test_a_job_carries_its_files_and_runs_where_they_are_not(animals, tmp_path, 
     shutil.rmtree(copy)
     outcome = cluster_module.run_payload(payload)
     assert outcome.report["status"] == "done", outcome.report.get("error")
-    assert set(outcome.files) == {job.output_name, "horse.mtl", "textures/skin.png"}
+    regions = labels_file_beside(job.output_name).as_posix()     # the output's own labels file
+    assert set(outcome.files) == {job.output_name, regions, "horse.mtl", "textures/skin.png"}
     assert outcome.report["job"]["mesh"] == str(job.mesh)
     assert str(job.segmentation) in outcome.report["labels"]["source"]
     assert "allorules-job-" not in json.dumps(outcome.report)   # no worker scratch path leaks into the report
