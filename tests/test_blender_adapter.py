@@ -282,3 +282,20 @@ def test_regions_painted_without_one_a_ruleset_needs_are_refused_in_the_panel_s_
         adapter.scale_arrays(horse.vertices, horse.faces, mass_ratio=2.0, regions=(painted, horse.region_names))
     said = adapter.in_panel_terms(str(refused.value))
     assert "paint the vertex groups it lacks (region:<name>)" in said and "--segmentation" not in said
+
+
+def test_regions_from_vertex_groups_are_measured_along_the_animals_axes():
+    """Label Regions' groups given back without a frame (painted, or the frame not kept): the run
+    reads up and forward off the regions, as the labeller found them (the giraffe's regions'
+    centroids alone were 41° off); given the labeller's up and forward, it uses them."""
+    from allorules.mesh.quadruped import generate_quadruped
+
+    giraffe = generate_quadruped("giraffe", 2000)
+    labels, names, found = adapter.label_arrays(giraffe.vertices, giraffe.faces)
+    up, forward = np.asarray(found["up"]), np.asarray(found["forward"])
+    _, bare = adapter.scale_arrays(giraffe.vertices, giraffe.faces, mass_ratio=1.2, modes=40, global_mode=True,
+                                   regions=(labels, names))
+    assert np.dot(bare["up"], up) > np.cos(np.radians(3.0)) and np.dot(bare["forward"], forward) > np.cos(np.radians(3.0))
+    _, given = adapter.scale_arrays(giraffe.vertices, giraffe.faces, mass_ratio=1.2, modes=40, global_mode=True,
+                                    regions=(labels, names), up=up, forward=forward)
+    assert np.dot(given["up"], up) > 1 - 1e-9 and np.dot(given["forward"], forward) > 1 - 1e-9

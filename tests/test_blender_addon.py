@@ -241,6 +241,31 @@ def test_label_regions_adds_vertex_groups_that_a_run_then_uses(blender):
     assert summary["mass_ratio"] == pytest.approx(1.5, rel=0.01)
 
 
+def test_label_regions_keeps_the_axes_it_found_and_they_follow_the_object(blender):
+    """Label Regions keeps the up and forward it found on the object, in its own coordinates: read
+    back after the object is turned, they are the labeller's turned with it, and Scale with the
+    groups measures along them."""
+    from allorules.blender.objects import read_source
+
+    horse = quadruped_object("Framed")
+    bpy.context.view_layer.update()
+    assert bpy.ops.allorules.label_regions(up="Z") == {'FINISHED'}
+    assert "allorules_frame" in horse.keys()
+    before = read_source(bpy.context, horse, regions=True)
+    up, forward = before.regions_frame
+    assert up @ np.array([0.0, 0.0, 1.0]) > 0.99          # it stands on Z (blender_scene turns it so)
+    for mesh in before.copies:
+        bpy.data.meshes.remove(mesh)
+    horse.rotation_euler[2] += 0.7                          # turned about Z after labelling
+    bpy.context.view_layer.update()
+    after = read_source(bpy.context, horse, regions=True)
+    turn = np.array([[math.cos(0.7), -math.sin(0.7), 0.0], [math.sin(0.7), math.cos(0.7), 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(after.regions_frame[0], turn @ up, atol=1e-6)
+    np.testing.assert_allclose(after.regions_frame[1], turn @ forward, atol=1e-6)
+    for mesh in after.copies:
+        bpy.data.meshes.remove(mesh)
+
+
 # --- the extension, installed from its file -------------------------------------------------------
 
 

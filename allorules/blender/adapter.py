@@ -19,6 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from allorules.body import Frame
 from allorules.errors import AllorulesError, MeshError, ScalingError
 from allorules.runs.progress import RunProgress
 from allorules.segment.body_plan import BY_HAND
@@ -88,6 +89,17 @@ def _frame(body) -> dict[str, list[float]]:
     return {"up": up.tolist(), "forward": forward.tolist()}
 
 
+def regions_frame(up: np.ndarray | None, forward: np.ndarray | None) -> Frame | None:
+    """The frame painted regions are measured in: ``up``, and ``forward`` made square to it; None
+    unless both are given (and not parallel)."""
+    if up is None or forward is None:
+        return None
+    up = np.asarray(up, dtype=float) / np.linalg.norm(up)
+    forward = np.asarray(forward, dtype=float) - np.dot(forward, up) * up
+    length = np.linalg.norm(forward)
+    return None if length < 1e-6 else Frame(up=up, forward=forward / length)
+
+
 def label_arrays(vertices: np.ndarray, faces: np.ndarray, *, up: np.ndarray | None = None,
                  forward: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...], dict[str, Any]]:
     """The regions of the animal ``vertices`` / ``faces`` as a run finds them (every one the labeller
@@ -118,8 +130,9 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     ``posture``: ``keep`` / ``upright`` / ``free``, or ``None`` for the ruleset's own. ``up``,
     ``forward``: the body's up (feet to back) and forward (tail to head), detected when ``None``.
     ``regions``: (a region index for every input vertex, -1 for none; the region names), the
-    regions painted as vertex groups, used instead of labelling the animal (``up``/``forward``
-    then only place the output). ``progress`` is told of steps, bases and trials and may raise to
+    regions painted as vertex groups, used instead of labelling the animal; ``up`` and ``forward``,
+    both given, are then the axes the regions are measured along (those Label Regions found:
+    :func:`label_arrays`'s report), else the axes come from the regions themselves. ``progress`` is told of steps, bases and trials and may raise to
     cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
@@ -145,7 +158,7 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
             rules = replace(rules, solver=replace(rules.solver, posture=posture))
         scaling = pipeline.RulesetScaling(rules, mass_ratio)
     labels = None if regions is None else pipeline.VertexRegions(np.asarray(regions[0]), tuple(regions[1]),
-                                                                  "vertex groups")
+                                                                  "vertex groups", regions_frame(up, forward))
     run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, labels=labels,
                        up=up, forward=forward, modes=modes, progress=progress)
     report = run.report()

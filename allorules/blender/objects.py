@@ -9,11 +9,13 @@ n-gons, UV layers, materials, smooth/flat shading and every other attribute stay
 positions are written. The new object keeps the original's world matrix, moved sideways, and
 has no modifiers (they are already applied). The original is never written to, except by the
 Label Regions operator, which is asked to: it adds the vertex groups ``region:<name>``
-(:func:`write_regions`). :func:`read_regions` reads them back, through the modifiers, from the
-evaluated mesh.
+(:func:`write_regions`), and the body's up and forward it found, in the object's own coordinates
+(:func:`write_frame`, the custom property ``allorules_frame``). :func:`read_regions` and
+:func:`read_frame` read them back (the groups through the modifiers, from the evaluated mesh).
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 
 import bpy
@@ -22,6 +24,8 @@ import numpy as np
 
 from allorules.blender.adapter import GROUP_PREFIX, REGION_GROUPS
 from allorules.errors import AllorulesError, MeshError, SegmentationError
+
+FRAME_PROPERTY = "allorules_frame"   # Label Regions' up and forward, in the object's coordinates
 
 
 @dataclass
@@ -36,6 +40,7 @@ class SourceMesh:
     collections: list = field(default_factory=list)
     object_materials: dict = field(default_factory=dict)   # slot index -> material, for slots linked to the object
     regions: tuple[np.ndarray, tuple[str, ...]] | None = None   # from the vertex groups, when asked (read_regions)
+    regions_frame: tuple[np.ndarray, np.ndarray] | None = None   # (up, forward) in world space: Label Regions' (read_frame)
 
 
 def read_source(context, obj, copies: int = 1, regions: bool = False) -> SourceMesh:
@@ -62,6 +67,7 @@ def read_source(context, obj, copies: int = 1, regions: bool = False) -> SourceM
         mesh.loop_triangles.foreach_get("vertices", triangles)
         world = local @ matrix[:3, :3].T + matrix[:3, 3]
         painted = read_regions(obj, mesh) if regions else None
+        frame = read_frame(obj, matrix) if regions else None
         for _ in range(copies - 1):
             made.append(mesh.copy())
     except BaseException:
@@ -70,7 +76,7 @@ def read_source(context, obj, copies: int = 1, regions: bool = False) -> SourceM
         raise
     object_materials = {index: slot.material for index, slot in enumerate(obj.material_slots) if slot.link == 'OBJECT'}
     return SourceMesh(obj.name, matrix, world, triangles.reshape(-1, 3).astype(np.int64), made,
-                      list(obj.users_collection), object_materials, painted)
+                      list(obj.users_collection), object_materials, painted, frame)
 
 
 def region_groups(obj) -> dict[int, str]:
@@ -98,6 +104,32 @@ def read_regions(obj, mesh) -> tuple[np.ndarray, tuple[str, ...]]:
         raise SegmentationError(f"{obj.name}: its region vertex groups hold no vertex; paint them, or set Regions "
                                 "to Detect")
     return labels, names
+
+
+def write_frame(obj, matrix: np.ndarray, up, forward) -> None:
+    """Keep the body's up and forward (world space, as Label Regions found them) on ``obj``, in its
+    own coordinates (``FRAME_PROPERTY``), so that they follow the object when it is moved or turned."""
+    inverse = np.linalg.inv(np.asarray(matrix, dtype=float)[:3, :3])
+    local = {name: (inverse @ np.asarray(direction, dtype=float)).tolist() for name, direction in
+             (("up", up), ("forward", forward))}
+    obj[FRAME_PROPERTY] = json.dumps(local)
+
+
+def read_frame(obj, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The (up, forward) :func:`write_frame` kept on ``obj``, in world space now; None when it has
+    none (regions painted by hand) or one that cannot be read."""
+    try:
+        local = json.loads(obj.get(FRAME_PROPERTY, ""))
+        up, forward = (np.asarray(local[name], dtype=float) for name in ("up", "forward"))
+    except (TypeError, ValueError, KeyError):
+        return None
+    if up.shape != (3,) or forward.shape != (3,) or not (np.isfinite(up).all() and np.isfinite(forward).all()):
+        return None
+    linear = np.asarray(matrix, dtype=float)[:3, :3]
+    up, forward = linear @ up, linear @ forward
+    if min(np.linalg.norm(up), np.linalg.norm(forward)) < 1e-12:
+        return None
+    return up / np.linalg.norm(up), forward / np.linalg.norm(forward)
 
 
 def check_regions_writable(obj, count: int) -> None:

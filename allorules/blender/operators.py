@@ -33,6 +33,7 @@ from allorules.blender.objects import (
     discard,
     frame_axes,
     read_source,
+    write_frame,
     write_regions,
 )
 from allorules.blender.results import RunSummary, run_summary
@@ -79,9 +80,12 @@ class Settings:
     painted: bool = False            # the regions come from the object's region: vertex groups
 
     def scale(self, source: SourceMesh, ratio: float, progress=None):
+        up, forward = self.up, self.forward
+        if source.regions is not None and source.regions_frame is not None and forward is None:
+            up, forward = source.regions_frame      # the axes Label Regions found, unless Forward is set
         return adapter.scale_arrays(source.vertices, source.triangles, ruleset=self.ruleset, mass_ratio=ratio,
                                     modes=self.modes, posture=self.posture, global_mode=self.global_mode,
-                                    up=self.up, forward=self.forward, regions=source.regions, progress=progress)
+                                    up=up, forward=forward, regions=source.regions, progress=progress)
 
 
 def copy_name(source_name: str, ratio: float) -> str:
@@ -363,6 +367,7 @@ class ALLORULES_OT_label_regions(_InBackground, bpy.types.Operator):
             if len(obj.data.vertices) != len(source.vertices):
                 raise MeshError(f"{obj.name}'s mesh changed while its regions were found; run Label Regions again")
             added = write_regions(obj, labels, names)
+            write_frame(obj, source.matrix, report["up"], report["forward"])
         finally:
             discard(source)
         sure = ", ".join(f"{key} {value:.2f}" for key, value in report.get("confidence", {}).items())

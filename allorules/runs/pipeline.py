@@ -31,7 +31,7 @@ from typing import Any, Iterable, Union
 import numpy as np
 
 from allorules import __version__
-from allorules.body import Body, Labelling
+from allorules.body import Body, Frame, Labelling
 from allorules.errors import (
     AllorulesError,
     MeasurementError,
@@ -40,6 +40,7 @@ from allorules.errors import (
     SegmentationError,
 )
 from allorules.files import same_file
+from allorules.measure.frame import regions_frame
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
 from allorules.measure.quality import QualityReport, flipped_faces, quality_report
@@ -130,11 +131,13 @@ Scaling = Union[GlobalScaling, RulesetScaling, RawGlobalScaling, LocalScaling]
 class VertexRegions:
     """Regions given for every vertex of the input as it came, not through a file (a Blender mesh's
     vertex groups): ``labels[k]`` indexes ``region_names`` for input vertex ``k``, -1 for none;
-    ``source`` says where they came from (the report's labelling)."""
+    ``source`` says where they came from (the report's labelling); ``frame``, the body's up and
+    forward as whoever labelled it found them (the measures' axes; ``None``: from the regions)."""
 
     labels: np.ndarray
     region_names: tuple[str, ...]
     source: str
+    frame: Frame | None = None
 
     def on(self, prepared: PreparedMesh) -> Body:
         """The prepared body with these regions (input vertices mapped onto the body's)."""
@@ -146,7 +149,7 @@ class VertexRegions:
             raise SegmentationError(f"{self.source}: a label is not a region index (0 … {len(self.region_names) - 1}, "
                                     "or -1 for none)")
         return Body(prepared.vertices, prepared.faces).with_labels(prepared.body_labels(labels), self.region_names,
-                                                                  Labelling(self.source))
+                                                                  Labelling(self.source), self.frame)
 
 
 PLACEMENTS = ("ground", "centroid")
@@ -233,7 +236,8 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
         if given is not None and (up is not None or forward is not None):
             log.warning("--up/--forward are ignored: the regions and axes come from the labels file beside the mesh")
     if labels is None and given is None:
-        return label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=regions)
+        return _framed(label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward,
+                             regions=regions))
     if isinstance(labels, VertexRegions):
         user = labels.on(prepared)
     elif labels is None:
@@ -241,7 +245,22 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
     else:
         user = label(Body(prepared.vertices, prepared.faces), registry=registry, labels=labels, up=up,
                      forward=forward, regions=())
-    return fold_regions(work.from_user(user), tuple(regions))
+    return _framed(fold_regions(work.from_user(user), tuple(regions)))
+
+
+def _framed(body: Body) -> Body:
+    """``body`` with a frame: its own (the labeller's, a labels file's), else read off its regions
+    (:func:`allorules.measure.frame.regions_frame`), so that every measure, the per-axis power law
+    and the ground use one up and one forward."""
+    if body.frame is not None or body.labels is None:
+        return body
+    frame = regions_frame(body)
+    if frame is None:
+        return body
+    labelling = body.labelling or Labelling("given")
+    labelling = replace(labelling, notes=tuple(labelling.notes) + ("up and forward read off the regions (the plane "
+                                                                   "of the feet, abdomen to chest)",))
+    return body.with_labels(body.labels, body.region_names, labelling, frame)
 
 
 def input_regions(source: str | Path | Any, *, registry: PluginRegistry | None = None,
@@ -258,7 +277,8 @@ def input_regions(source: str | Path | Any, *, registry: PluginRegistry | None =
     on_working = label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward, regions=())
     user = work.labels_to_user(on_working, Body(prepared.vertices, prepared.faces))
     source_text = on_working.labelling.source if on_working.labelling else "segmenter"
-    return VertexRegions(prepared.source_labels(user.labels), tuple(user.region_names), source_text), on_working
+    return VertexRegions(prepared.source_labels(user.labels), tuple(user.region_names), source_text,
+                         on_working.frame), on_working
 
 
 def wanted_regions(ruleset: Ruleset | None) -> tuple[str, ...]:

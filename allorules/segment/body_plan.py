@@ -188,7 +188,7 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
         terms["persistence"] = 1.0 - tips.persistence[list(four)].sum() / np.sort(tips.persistence)[::-1][:4].sum()
         # Legs are tubes: a flat sheet (a big ear) is not a leg.
         terms["flat"] = sum(max(0.0, (tips.flatness[x] - FLAT_LEG) / FLAT_LEG) for x in four)
-        ground = _ground_plane(vertices[tips.vertices[list(four)]], vertices, centroid, up)
+        ground = ground_plane(vertices[tips.vertices[list(four)]], vertices, centroid, up)
         # Feet stand on their ground at the end of legs reaching down to it, and the ground's bonus is
         # as large as they do (each foot's direction from the centre of the ring above it): a dog
         # grazing with long horns also rests on a plane through its horns' tips and its forefeet,
@@ -218,7 +218,7 @@ PLANARITY_TOLERANCE = 0.12  # foot heights off their plane, relative to the feet
 SUPPORT_TOLERANCE = 0.06    # how far (relative to body height) the mesh may dip below the foot plane
 
 
-def _ground_plane(points, vertices, centroid, up):
+def ground_plane(points, vertices, centroid, up):
     """Unit normal (towards the body) of a plane the four feet stand on, or None: the feet lie on
     it (height spread ≤ PLANARITY_TOLERANCE of their spread), nothing dips more than
     SUPPORT_TOLERANCE of the body height below it, and the centroid projects inside the feet."""
@@ -370,7 +370,7 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
             f"{settle_feet(up, forward)}")
     feet = tips.vertices[[p, q, r, s]]
     centroid = np.average(vertices, axis=0, weights=mass)
-    ground = _ground_plane(vertices[feet], vertices, centroid, up)
+    ground = ground_plane(vertices[feet], vertices, centroid, up)
     return FeetChoice((int(feet[0]), int(feet[1])), (int(feet[2]), int(feet[3])), float(margin), ground,
                       dict(best.terms))
 

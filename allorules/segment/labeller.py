@@ -177,7 +177,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     fore, hind = list(ends.head.pair), list(ends.tail.pair)
     up_given = up is not None
     if up is None:
-        up = choice.ground if choice.ground is not None else _up_from_legs(vertices, mass, feet, axes)
+        up = choice.ground if choice.ground is not None else up_from_legs(vertices, mass, feet, axes)
     chord = ends.head.centre - ends.tail.centre
     if forward is not None:
         flat = forward - (forward @ up) * up
@@ -319,7 +319,7 @@ def _check_leg_pairs(mass, legs, pairs, settle: str) -> None:
 
 
 
-def _up_from_legs(vertices, mass, feet, axes) -> np.ndarray:
+def up_from_legs(vertices, mass, feet, axes) -> np.ndarray:
     """Up for an animal not standing on all four feet: the normal of a plane through three feet
     that nothing lies below (the ground it rests on) closest to the legs' mean direction, or that
     direction itself."""

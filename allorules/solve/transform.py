@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from allorules.body import Body
+from allorules.measure.frame import regions_frame
 from allorules.measure.parts import TORSO_REGIONS
 from allorules.rules.model import TRANSFORM_FORMS
 from allorules.solve.held_regions import HeldRegions
@@ -30,24 +31,13 @@ from allorules.spectral.power_laws import (
 
 def anatomical_axes(body: Body) -> np.ndarray:
     """The animal's own axes as rows (forward, up, side), orthonormal and right-handed, in mesh
-    coordinates: from ``body.frame`` when the labeller found one; else from the regions (forward:
-    abdomen → head, neck or chest; up: limbs → torso); else the mesh's own axes."""
+    coordinates: from ``body.frame`` (the labeller's, a labels file's, or read off the regions by
+    the run pipeline); else read off the regions here (:func:`allorules.measure.frame.regions_frame`);
+    else the mesh's own axes."""
+    frame = body.frame if body.frame is not None else regions_frame(body)
     forward = up = None
-    if body.frame is not None:
-        forward, up = np.asarray(body.frame.forward, dtype=float), np.asarray(body.frame.up, dtype=float)
-    elif body.labels is not None:
-        def centroid(names: tuple[str, ...]) -> np.ndarray | None:
-            mask = np.zeros(len(body.vertices), dtype=bool)
-            for name in names:
-                if body.has_region(name):
-                    mask |= body.region_mask(name)
-            return body.vertices[mask].mean(axis=0) if mask.any() else None
-
-        front = centroid(("head", "neck"))
-        front = front if front is not None else centroid(("chest",))
-        back, torso, limbs = centroid(("abdomen",)), centroid(("chest", "abdomen")), centroid(("forelimbs", "hindlimbs"))
-        if all(point is not None for point in (front, back, torso, limbs)):
-            forward, up = front - back, torso - limbs
+    if frame is not None:
+        forward, up = np.asarray(frame.forward, dtype=float), np.asarray(frame.up, dtype=float)
     if forward is None or up is None or np.linalg.norm(np.cross(forward, up)) < 1e-9 * np.linalg.norm(forward) * np.linalg.norm(up):
         return np.eye(3)
     forward = forward / np.linalg.norm(forward)
