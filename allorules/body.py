@@ -28,6 +28,19 @@ class Frame:
 
 
 @dataclass(frozen=True)
+class HeartGirthTape:
+    """Where heart girth's tape goes on an animal, as chosen on a reference body (a run's input):
+    the chest's area quantiles its candidate sections are cut at, the piece they go round
+    (``"part"``: the chest's own, ``"torso"``, ``"body"``) and the margin behind the forelimbs
+    (:func:`allorules.measure.girth.chest_girth`). Travels with the regions (a labels file keeps
+    it), so that a run's output is measured as its run measured it."""
+
+    levels: tuple[float, ...]
+    piece: str
+    margin: float
+
+
+@dataclass(frozen=True)
 class Labelling:
     """Who labelled a body's regions, and how sure it was."""
 
@@ -45,7 +58,8 @@ class Body:
     """A closed-or-open triangle mesh plus what is known about its anatomy.
 
     ``labels[i]`` is the index into ``region_names`` of vertex ``i``'s region, or
-    ``UNLABELLED``. ``labelling`` says who labelled it. ``measured`` holds what the measure stage
+    ``UNLABELLED``. ``labelling`` says who labelled it; ``tape``, where heart girth is measured
+    when a reference body chose it (a labels file's). ``measured`` holds what the measure stage
     derived from these exact vertices (:class:`allorules.measure.cache.Measured`: region parts,
     fields, skeletons, measured values); it is dropped by :meth:`with_vertices`.
     """
@@ -57,6 +71,7 @@ class Body:
     frame: Frame | None = None
     labelling: Labelling | None = None
     measured: Any = field(default=None, repr=False, compare=False)
+    tape: HeartGirthTape | None = None   # heart girth's tape as a reference body chose it (None: chosen here)
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
@@ -87,10 +102,10 @@ class Body:
 
     def with_vertices(self, vertices: np.ndarray) -> "Body":
         """The same body (faces, labels, frame, labelling) deformed to new vertex positions."""
-        return Body(vertices, self.faces, self.labels, self.region_names, self.frame, self.labelling)
+        return Body(vertices, self.faces, self.labels, self.region_names, self.frame, self.labelling, tape=self.tape)
 
     def with_labels(self, labels: np.ndarray, region_names: tuple[str, ...], labelling: Labelling | None = None,
                     frame: Frame | None = None) -> "Body":
         """The same surface with other regions (and, if given, who labelled them and the frame)."""
         return Body(self.vertices, self.faces, labels, region_names, frame if frame is not None else self.frame,
-                    labelling if labelling is not None else self.labelling)
+                    labelling if labelling is not None else self.labelling, tape=self.tape)

@@ -66,6 +66,8 @@ def test_the_output_carries_the_regions_its_run_measured(scaled):
     assert set(document["regions"]) >= {"head", "neck", "chest", "abdomen", "forelimbs", "hindlimbs"}
     assert set(report["labels"]["regions"]) == set(document["regions"])
     assert "up" in document["frame"] and "forward" in document["frame"]
+    tape = document["heart_girth_tape"]          # where the run put heart girth's tape on its input
+    assert tape["piece"] in ("part", "torso", "body") and tape["levels"] and 0 <= tape["margin"] < 1
 
 
 def test_measuring_the_output_again_gives_the_exponents_its_run_reported(scaled, capsys):
@@ -136,3 +138,31 @@ def test_the_outputs_labels_file_is_checked_before_the_work(scaled, capsys):
     assert "big.labels.json" in error and "never overwritten" in error
     assert not (scaled / "big.ply").exists()
     assert {path.name: sha256(path) for path in scaled.iterdir()} == kept
+
+
+def test_a_labels_files_tape_is_where_heart_girth_is_measured(tmp_path):
+    """The tape a labels file keeps is read back as it was written, a malformed one is passed over
+    (the tape placed afresh), and heart girth is measured where the tape says: at its levels only,
+    not at the largest of the levels it would choose itself."""
+    from dataclasses import replace
+
+    from allorules.body import HeartGirthTape
+    from allorules.measure.girth import chest_girth, heart_girth_tape
+    from allorules.segment.labels_io import write_labels
+
+    horse = generate_quadruped("horse", 2000).body()
+    chosen = heart_girth_tape(horse)
+    assert chosen is not None and len(chosen.levels) > 1
+    path = tmp_path / "horse.labels.json"
+    write_labels(path, replace(horse, tape=chosen))
+    assert read_labels(path, Body(horse.vertices, horse.faces)).tape == chosen
+    document = json.loads(path.read_text())
+    document["heart_girth_tape"]["piece"] = "somewhere"
+    path.write_text(json.dumps(document))
+    assert read_labels(path, Body(horse.vertices, horse.faces)).tape is None
+
+    largest = chest_girth(horse.with_vertices(horse.vertices))
+    one_level = [replace(horse.with_vertices(horse.vertices), tape=HeartGirthTape((level,), chosen.piece, chosen.margin))
+                 for level in chosen.levels[:3]]
+    girths = [chest_girth(body) for body in one_level]
+    assert max(girths) <= largest + 1e-12 and min(girths) < largest - 1e-6

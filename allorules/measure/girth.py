@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from allorules.body import Body
+from allorules.body import Body, HeartGirthTape
 from allorules.errors import MeasurementError
 from allorules.measure.cache import measured
 from allorules.measure.length import region_skeleton
@@ -174,6 +174,8 @@ def chest_girth(body: Body) -> float:
 
     cache = measured(body)
     carried = cache.carried.chest_candidates if cache.carried else None
+    if carried is None and body.tape is not None:     # the tape a reference body chose (a labels file's)
+        carried = (np.asarray(body.tape.levels, dtype=float), body.tape.piece, body.tape.margin)
     loops: list[Loop] = []
     if carried is not None:
         kept, piece, margin = carried
@@ -199,6 +201,25 @@ def chest_girth(body: Body) -> float:
             "may have holes there, or the forelimbs' labels reach along the whole trunk; check the segmentation"
         )
     return max(loop.girth for loop in loops)
+
+
+def heart_girth_tape(body: Body) -> HeartGirthTape | None:
+    """Where :func:`chest_girth` puts its tape on ``body`` (carried, given or chosen here, measuring
+    it if need be), to be kept with the regions; None where heart girth cannot be measured."""
+    cache = measured(body)
+    choice = cache.carried.chest_candidates if cache.carried and cache.carried.chest_candidates else None
+    if choice is None and body.tape is not None:
+        return body.tape
+    if choice is None:
+        try:
+            chest_girth(body)
+        except (MeasurementError, KeyError, IndexError):
+            return None
+        choice = cache.chest_candidates
+    if choice is None:
+        return None
+    levels, piece, margin = choice
+    return HeartGirthTape(tuple(float(level) for level in np.atleast_1d(levels)), str(piece), float(margin))
 
 
 def region_girth(body: Body, region: str) -> float:

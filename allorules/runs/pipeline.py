@@ -41,6 +41,7 @@ from allorules.errors import (
 )
 from allorules.files import same_file
 from allorules.measure.frame import regions_frame
+from allorules.measure.girth import heart_girth_tape
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
 from allorules.measure.quality import QualityReport, flipped_faces, quality_report
@@ -190,7 +191,8 @@ class Working:
             return user
         to_user = bind(self.mesh.vertices, user.vertices, user.faces)
         labels = carry_labels(to_user, user.labels)
-        return Body(self.mesh.vertices, self.mesh.faces, labels, user.region_names, user.frame, user.labelling)
+        return Body(self.mesh.vertices, self.mesh.faces, labels, user.region_names, user.frame, user.labelling,
+                    tape=user.tape)
 
     def labels_to_user(self, body: Body, user: Body) -> Body:
         """The user's body with the working body's regions (each user vertex takes its working
@@ -764,7 +766,8 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
                           overwrite=overwrite)
     if labels is not None:
         user = Body(prepared.vertices, prepared.faces)
-        write_labels(labels, run.body if run.working is None else run.working.labels_to_user(run.body, user))
+        regions = run.body if run.working is None else run.working.labels_to_user(run.body, user)
+        write_labels(labels, replace(regions, tape=heart_girth_tape(run.body)))   # the tape as the run put it
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
 

@@ -8,8 +8,10 @@
   ``labels[i]`` indexes ``regions``; ``-1`` means unlabelled. The generator's CLI writes the same.
   Optional: ``labelling`` (who labelled it, how sure), ``frame`` (``{"up": [x, y, z],
   "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels)
-  and ``faces_sha256`` (the mesh's faces, so that a file is known to be this mesh's: a run's output
-  keeps its input's faces, so its input's labels fit it too).
+  ``faces_sha256`` (the mesh's faces, so that a file is known to be this mesh's: a run's output
+  keeps its input's faces, so its input's labels fit it too) and ``heart_girth_tape`` (``{"levels":
+  [area quantiles of the chest], "piece": "part"|"torso"|"body", "margin": m}``: where a run put
+  heart girth's tape on its input, so that its output is measured there too).
   ``NAME.labels.json`` beside ``NAME.EXT`` (:func:`labels_file_beside`) is the mesh's own: ``allorules
   scale`` writes its output's there, and ``scale`` and ``measure`` read it when it fits the mesh.
 * **Princeton segmentation benchmark ``.seg``**: one integer per line, one line per FACE, in face
@@ -32,13 +34,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sparse
 import yaml
 
-from allorules.body import UNLABELLED, Body, Frame, Labelling
+from allorules.body import UNLABELLED, Body, Frame, HeartGirthTape, Labelling
 from allorules.errors import RulesetError, SegmentationError, SourceLocation
 from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
@@ -47,6 +50,7 @@ from allorules.segment.regions import QUADRUPED_REGIONS
 log = logging.getLogger("allorules")
 
 LABELS_FORMAT = "allorules-labels"
+TAPE_PIECES = ("part", "torso", "body")   # what heart girth's tape goes round (measure/girth.chest_girth)
 LABELS_VERSION = 1
 
 
@@ -89,6 +93,9 @@ def write_labels(path: str | Path, body: Body) -> None:
     if body.frame is not None:       # the animal's up and forward the labeller found (optional when read)
         document["frame"] = {"up": [float(value) for value in body.frame.up],
                              "forward": [float(value) for value in body.frame.forward]}
+    if body.tape is not None:        # where heart girth's tape went on the run's input (optional when read)
+        document["heart_girth_tape"] = {"levels": [float(level) for level in body.tape.levels],
+                                        "piece": body.tape.piece, "margin": float(body.tape.margin)}
     atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
 
 
@@ -134,8 +141,9 @@ def read_labels(path: str | Path, body: Body, *, same_faces: bool = False) -> Bo
             f"{path}: label {int(labels[bad][0])} at vertex {int(np.flatnonzero(bad)[0])} is not a region index "
             f"(0 … {len(regions) - 1}, or -1 for unlabelled)"
         )
-    return body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")),
-                            _read_frame(document.get("frame")))
+    labelled = body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")),
+                                _read_frame(document.get("frame")))
+    return replace(labelled, tape=_read_tape(document.get("heart_girth_tape")))
 
 
 def _read_labelling(value) -> Labelling | None:
@@ -147,6 +155,20 @@ def _read_labelling(value) -> Labelling | None:
     return Labelling(value["source"], {str(key): float(number) for key, number in confidence.items()
                                        if isinstance(number, (int, float)) and not isinstance(number, bool)},
                      tuple(str(note) for note in notes))
+
+
+def _read_tape(value) -> HeartGirthTape | None:
+    """The optional ``heart_girth_tape`` of a labels file (a malformed one is ignored: the tape is
+    then placed afresh)."""
+    if not isinstance(value, dict) or value.get("piece") not in TAPE_PIECES:
+        return None
+    levels, margin = value.get("levels"), value.get("margin")
+    if not isinstance(levels, list) or not levels or not all(isinstance(level, (int, float)) and not isinstance(level, bool)
+                                                             and 0.0 < level < 1.0 for level in levels):
+        return None
+    if not isinstance(margin, (int, float)) or isinstance(margin, bool) or not 0.0 <= margin < 1.0:
+        return None
+    return HeartGirthTape(tuple(float(level) for level in levels), value["piece"], float(margin))
 
 
 def _read_frame(value) -> Frame | None:
