@@ -1,12 +1,14 @@
-"""A run's outputs measured as an outside check might: with the input's labels, and labelled afresh.
+"""A run's outputs measured as an outside check might: as written, with the input's labels, and afresh.
 
 Run: .venv/bin/python benchmarks/bench_output_relabelled.py GALLERY_OUT
 
 GALLERY_OUT is a folder written by ``benchmarks/gallery_real_animals.py`` (NAME-xR.obj and
-NAME-xR.json per run). For every converged run, the input (from ``../shared/meshes``) and the output
-are measured with ``allorules measure --json`` twice: with the input's labels (``allorules
+NAME-xR.json per run, and NAME-xR.labels.json, the regions the run wrote beside its mesh). For every
+converged run, the input (from ``../shared/meshes``) and the output are measured with ``allorules
+measure --json`` three ways: as written (the output with the labels file beside it, which
+``measure`` reads; the input labelled as a run labels it), with the input's labels (``allorules
 segment`` on the input; the output keeps the input's vertices in their order) and each labelled
-afresh. Prints, per run, each rule's achieved exponent both ways against its target, and the head's
+afresh (``--relabel``). Prints, per run, each rule's achieved exponent both ways against its target, and the head's
 vertex count each way. Record what it says in docs/measurements.md.
 """
 from __future__ import annotations
@@ -28,9 +30,11 @@ def source(name: str) -> Path:
     return SHARED / "psb-fourleg" / f"{name[4:]}.off" if name.startswith("psb-") else SHARED / f"{name}.obj"
 
 
-def measure(mesh: Path, labels: Path | None = None) -> dict[str, float] | None:
-    """Each rule's quantity of ``mesh`` (labelled from ``labels``, else afresh), or None on a refusal."""
-    command = [str(ALLORULES), "measure", str(mesh), "--json"] + (["--segmentation", str(labels)] if labels else [])
+def measure(mesh: Path, labels: Path | None = None, relabel: bool = False) -> dict[str, float] | None:
+    """Each rule's quantity of ``mesh`` (labelled from ``labels``, else from its own labels file
+    beside it, else afresh; ``relabel``: afresh), or None on a refusal."""
+    command = [str(ALLORULES), "measure", str(mesh), "--json"] + (["--segmentation", str(labels)] if labels else []) \
+        + (["--relabel"] if relabel else [])
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode:
         return None
@@ -69,9 +73,11 @@ def main() -> None:
                 continue
             input_labels, output_labels = folder / f"{name}.labels.json", folder / f"{report_path.stem}.labels.json"
             labelled_in, labelled_out = segment(source(name), input_labels), segment(output, output_labels)
+            afresh_in = measure(source(name), relabel=True)
             measured = {
+                "as written": (afresh_in, measure(output)),
                 "input's labels": (measure(source(name), input_labels), measure(output, input_labels)),
-                "afresh": (measure(source(name)), measure(output)),
+                "afresh": (afresh_in, measure(output, relabel=True)),
             }
             targets = {rule["id"]: rule["exponent"] for rule in report["rules"]}
             print(f"{report_path.stem}: head {head_count(labelled_in)} vertices as it comes, "
