@@ -166,3 +166,13 @@ def test_a_labels_files_tape_is_where_heart_girth_is_measured(tmp_path):
                  for level in chosen.levels[:3]]
     girths = [chest_girth(body) for body in one_level]
     assert max(girths) <= largest + 1e-12 and min(girths) < largest - 1e-6
+
+
+def test_a_labels_file_far_larger_than_its_mesh_needs_is_not_read(tmp_path):
+    """A file named like a mesh's labels that is something else (here 2 MB of spaces beside a
+    1,200-vertex mesh's regions) is refused by its size, before it is read whole."""
+    horse = generate_quadruped("horse", 1200)
+    path = tmp_path / "horse.labels.json"
+    path.write_text(json.dumps(horse.labels_document()) + " " * 2_000_000)
+    with pytest.raises(SegmentationError, match="too large for the labels of a mesh of"):
+        read_labels(path, Body(horse.vertices, horse.faces))

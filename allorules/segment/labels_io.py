@@ -99,12 +99,22 @@ def write_labels(path: str | Path, body: Body) -> None:
     atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
 
 
+def labels_file_limit(vertex_count: int) -> int:
+    """The largest labels file read for a mesh of ``vertex_count`` vertices, in bytes: room for a
+    padded label per vertex, the frame, the tape and the notes (1 MB)."""
+    return 16 * vertex_count + 1_000_000
+
+
 def read_labels(path: str | Path, body: Body, *, same_faces: bool = False) -> Body:
     """The body with the labels of an allorules labels file; checked against the body's vertex
     count and, where the file has them, its faces (another mesh's faces: refused with
     ``same_faces``, else used with a warning; ``same_faces`` also refuses a file without them)."""
     path = Path(path)
     try:
+        size, largest = path.stat().st_size, labels_file_limit(body.vertex_count)
+        if size > largest:    # a label is a few bytes: this is some other file, not to be read whole
+            raise SegmentationError(f"{path}: {size / 1e6:.1f} MB is too large for the labels of a mesh of "
+                                    f"{body.vertex_count} vertices (at most {largest / 1e6:.1f} MB); is it the right file?")
         document = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise SegmentationError(f"{path}: labels file not found") from None
