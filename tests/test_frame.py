@@ -67,3 +67,29 @@ def test_a_body_labelled_without_a_frame_is_given_one_by_the_pipeline(tmp_path):
         body = pipeline.label_working(prepared, work, registry=registry, labels=labels)
         assert degrees(body.frame.up, turn @ UP) < 3.0 and degrees(body.frame.forward, turn @ FORWARD) < 3.0
         assert any("read off the regions" in note for note in body.labelling.notes)
+
+
+def test_a_labels_files_frame_from_another_orientation_is_not_used(tmp_path, caplog):
+    """The mesh exported turned since it was labelled (the same faces, its vertices turned a
+    quarter round): the labels file's up and forward are the old orientation's, 90° off, and the
+    regions' own are used instead, saying so; a frame that fits is kept as it is."""
+    import logging
+
+    from allorules.segment.labels_io import write_labels
+
+    horse = generate_quadruped("horse", 2500)
+    labels = tmp_path / "horse.labels.json"
+    write_labels(labels, horse.body())                       # its frame: +Y up, +X forward
+    registry = registry_for(None)
+    quarter = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])   # +Y up becomes +Z up
+    for turn, kept in ((np.eye(3), True), (quarter, False)):
+        mesh = tmp_path / "horse.obj"
+        trimesh.Trimesh(horse.vertices @ turn.T, horse.faces, process=False).export(mesh)
+        prepared = pipeline.prepare(mesh)
+        with caplog.at_level(logging.WARNING, logger="allorules"):
+            caplog.clear()
+            body = pipeline.label_working(prepared, pipeline.working(prepared), registry=registry, labels=labels)
+        assert degrees(body.frame.up, turn @ UP) < 3.0 and degrees(body.frame.forward, turn @ FORWARD) < 3.0
+        assert ("since it was labelled" in caplog.text) != kept
+        if kept:
+            np.testing.assert_allclose(body.frame.up, UP)

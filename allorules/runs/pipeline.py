@@ -247,22 +247,40 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
     else:
         user = label(Body(prepared.vertices, prepared.faces), registry=registry, labels=labels, up=up,
                      forward=forward, regions=())
-    return _framed(fold_regions(work.from_user(user), tuple(regions)))
+    return _framed(fold_regions(work.from_user(user), tuple(regions)), given=True)
 
 
-def _framed(body: Body) -> Body:
+STALE_FRAME_DEGREES = 45.0   # a given frame this far from its regions' own is another orientation's
+
+
+def _framed(body: Body, given: bool = False) -> Body:
     """``body`` with a frame: its own (the labeller's, a labels file's), else read off its regions
     (:func:`allorules.measure.frame.regions_frame`), so that every measure, the per-axis power law
-    and the ground use one up and one forward."""
-    if body.frame is not None or body.labels is None:
+    and the ground use one up and one forward. A ``given`` frame (a labels file's, a body's) that
+    is ``STALE_FRAME_DEGREES`` or more from its regions' own was found on the mesh in another
+    orientation (exported turned since it was labelled): the regions' own is used, with a warning.
+    (The regions' own is within 2° of the labeller's standing, 10° walking, 34° sitting.)"""
+    if body.labels is None or (body.frame is not None and not given):
         return body
     frame = regions_frame(body)
     if frame is None:
         return body
+    if body.frame is not None:
+        turned = max(_degrees(body.frame.up, frame.up), _degrees(body.frame.forward, frame.forward))
+        if turned < STALE_FRAME_DEGREES:
+            return body
+        source = body.labelling.source if body.labelling else "the regions given"
+        log.warning("%s: its up and forward are %.0f° from those of its regions on this mesh (was the mesh turned "
+                    "since it was labelled?); the regions' own are used", source, turned)
     labelling = body.labelling or Labelling("given")
     labelling = replace(labelling, notes=tuple(labelling.notes) + ("up and forward read off the regions (the plane "
                                                                    "of the feet, abdomen to chest)",))
     return body.with_labels(body.labels, body.region_names, labelling, frame)
+
+
+def _degrees(first: np.ndarray, second: np.ndarray) -> float:
+    cosine = float(np.dot(first, second) / (np.linalg.norm(first) * np.linalg.norm(second)))
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
 def input_regions(source: str | Path | Any, *, registry: PluginRegistry | None = None,
