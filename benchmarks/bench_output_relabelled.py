@@ -65,7 +65,8 @@ def main() -> None:
     arguments = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
-        for report_path in sorted(arguments.gallery.glob("*-x*.json")):
+        for report_path in sorted(path for path in arguments.gallery.glob("*-x*.json")
+                                  if not path.name.endswith(".labels.json")):   # the outputs' own labels files
             name, ratio = report_path.stem.rsplit("-x", 1)
             report, output = json.loads(report_path.read_text()), report_path.with_suffix(".obj")
             if not report.get("converged") or not output.exists():

@@ -786,6 +786,7 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
         user = Body(prepared.vertices, prepared.faces)
         regions = run.body if run.working is None else run.working.labels_to_user(run.body, user)
         write_labels(labels, replace(regions, tape=heart_girth_tape(run.body)))   # the tape as the run put it
+        log.info("wrote %s: the regions the run measured, which allorules measure reads", labels)
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
 
