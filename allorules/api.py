@@ -78,8 +78,8 @@ def scale_mesh(
     the mesh file's own labels file beside it (``NAME.labels.json``, where it fits) or the
     ruleset's segmenter. With ``output``, the result is written in the input's own layout, its
     regions beside it as ``OUTPUT-NAME.labels.json``, when the run converged (an unconverged run
-    raises :class:`ScalingError` and writes nothing); no input is ever overwritten. The output stands where the input stood (``placement=
-    "centroid"``: its centroid in place). A mesh above ``working_vertices`` (default 8,000) is
+    raises :class:`ScalingError` and writes nothing); no input is ever overwritten. The output
+    stands where the input stood (``placement="centroid"``: its centroid in place). A mesh above ``working_vertices`` (default 8,000) is
     scaled on a working mesh and the result carried back to every one of its vertices. Returns the
     :class:`Run` (``run.report()`` is its JSON)."""
     registry = registry_for(list(plugins))

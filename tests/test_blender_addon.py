@@ -252,7 +252,7 @@ def test_label_regions_keeps_the_axes_it_found_and_they_follow_the_object(blende
     assert bpy.ops.allorules.label_regions(up="Z") == {'FINISHED'}
     assert "allorules_frame" in horse.keys()
     before = read_source(bpy.context, horse, regions=True)
-    up, forward = before.regions_frame
+    up, forward = before.label_frame
     assert up @ np.array([0.0, 0.0, 1.0]) > 0.99          # it stands on Z (blender_scene turns it so)
     for mesh in before.copies:
         bpy.data.meshes.remove(mesh)
@@ -260,8 +260,8 @@ def test_label_regions_keeps_the_axes_it_found_and_they_follow_the_object(blende
     bpy.context.view_layer.update()
     after = read_source(bpy.context, horse, regions=True)
     turn = np.array([[math.cos(0.7), -math.sin(0.7), 0.0], [math.sin(0.7), math.cos(0.7), 0.0], [0.0, 0.0, 1.0]])
-    np.testing.assert_allclose(after.regions_frame[0], turn @ up, atol=1e-6)
-    np.testing.assert_allclose(after.regions_frame[1], turn @ forward, atol=1e-6)
+    np.testing.assert_allclose(after.label_frame[0], turn @ up, atol=1e-6)
+    np.testing.assert_allclose(after.label_frame[1], turn @ forward, atol=1e-6)
     for mesh in after.copies:
         bpy.data.meshes.remove(mesh)
 

@@ -89,7 +89,7 @@ def _frame(body) -> dict[str, list[float]]:
     return {"up": up.tolist(), "forward": forward.tolist()}
 
 
-def regions_frame(up: np.ndarray | None, forward: np.ndarray | None) -> Frame | None:
+def given_frame(up: np.ndarray | None, forward: np.ndarray | None) -> Frame | None:
     """The frame painted regions are measured in: ``up``, and ``forward`` made square to it; None
     unless both are given (and not parallel)."""
     if up is None or forward is None:
@@ -132,8 +132,8 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
     ``regions``: (a region index for every input vertex, -1 for none; the region names), the
     regions painted as vertex groups, used instead of labelling the animal; ``up`` and ``forward``,
     both given, are then the axes the regions are measured along (those Label Regions found:
-    :func:`label_arrays`'s report), else the axes come from the regions themselves. ``progress`` is told of steps, bases and trials and may raise to
-    cancel the run.
+    :func:`label_arrays`'s report), else the axes come from the regions themselves. ``progress``
+    is told of steps, bases and trials and may raise to cancel the run.
 
     Returns the new position of every input vertex (n×3) and the run's report (JSON-ready, as
     ``allorules scale --report`` writes it, plus ``up`` and ``forward``: the body's frame in the
@@ -158,7 +158,7 @@ def scale_arrays(vertices: np.ndarray, faces: np.ndarray, *, ruleset: str = "qua
             rules = replace(rules, solver=replace(rules.solver, posture=posture))
         scaling = pipeline.RulesetScaling(rules, mass_ratio)
     labels = None if regions is None else pipeline.VertexRegions(np.asarray(regions[0]), tuple(regions[1]),
-                                                                  "vertex groups", regions_frame(up, forward))
+                                                                  "vertex groups", given_frame(up, forward))
     run = pipeline.run(trimesh.Trimesh(vertices, faces, process=False), scaling, registry=registry, labels=labels,
                        up=up, forward=forward, modes=modes, progress=progress)
     report = run.report()

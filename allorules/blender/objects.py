@@ -40,7 +40,7 @@ class SourceMesh:
     collections: list = field(default_factory=list)
     object_materials: dict = field(default_factory=dict)   # slot index -> material, for slots linked to the object
     regions: tuple[np.ndarray, tuple[str, ...]] | None = None   # from the vertex groups, when asked (read_regions)
-    regions_frame: tuple[np.ndarray, np.ndarray] | None = None   # (up, forward) in world space: Label Regions' (read_frame)
+    label_frame: tuple[np.ndarray, np.ndarray] | None = None   # (up, forward) in world space: Label Regions' (read_frame)
 
 
 def read_source(context, obj, copies: int = 1, regions: bool = False) -> SourceMesh:

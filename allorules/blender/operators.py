@@ -81,8 +81,8 @@ class Settings:
 
     def scale(self, source: SourceMesh, ratio: float, progress=None):
         up, forward = self.up, self.forward
-        if source.regions is not None and source.regions_frame is not None and forward is None:
-            up, forward = source.regions_frame      # the axes Label Regions found, unless Forward is set
+        if source.regions is not None and source.label_frame is not None and forward is None:
+            up, forward = source.label_frame      # the axes Label Regions found, unless Forward is set
         return adapter.scale_arrays(source.vertices, source.triangles, ruleset=self.ruleset, mass_ratio=ratio,
                                     modes=self.modes, posture=self.posture, global_mode=self.global_mode,
                                     up=up, forward=forward, regions=source.regions, progress=progress)

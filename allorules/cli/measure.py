@@ -4,8 +4,8 @@ The regions come from ``--segmentation FILE`` (an allorules labels ``.json``, or
 ``.seg`` whose segment ids 0…5 are head, neck, chest, abdomen, forelimbs, hindlimbs), from the
 mesh's own labels file beside it (``NAME.labels.json``, as ``allorules scale`` writes beside its
 output: an output is measured with the regions and axes its run measured) unless ``--relabel``, or
-from the ruleset's segmenter (the automatic quadruped labeller by default) when no file is given. Quantities are in the mesh's own units
-(mass = volume, density 1); only their ratios mean anything to the scaler.
+from the ruleset's segmenter (the automatic quadruped labeller by default). Quantities are in the
+mesh's own units (mass = volume, density 1); only their ratios mean anything to the scaler.
 """
 from __future__ import annotations
 
@@ -70,8 +70,8 @@ def segmented_body(arguments: argparse.Namespace, ruleset, registry):
     if arguments.segmentation:
         return labelled, str(arguments.segmentation)
     beside = labels_beside_input(arguments)     # read where it fits the mesh (pipeline.label_working)
-    read = beside is not None and labelled.labelling is not None and labelled.labelling.source.startswith(f"labels file {beside}")
-    return labelled, beside if read else "automatic"
+    source = labelled.labelling.source if labelled.labelling is not None else ""
+    return labelled, beside if beside is not None and source.startswith(f"labels file {beside}") else "automatic"
 
 
 def run(arguments: argparse.Namespace) -> int:

@@ -186,7 +186,8 @@ def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> P
     labels file beside each mesh) against every input of the command (allorules.files.check_outputs), before any work."""
     from allorules.files import JSON, PNG, Output, check_outputs, unconverged_path
     from allorules.output.export import SUPPORTED_FORMATS
-    from allorules.runs.pipeline import RawGlobalScaling, output_labels_path
+    from allorules.runs.pipeline import RawGlobalScaling
+    from allorules.segment.labels_io import labels_file_beside
 
     if not arguments.output:
         raise AllorulesError("give the output mesh with -o OUT (e.g. -o heavier.obj)")
@@ -198,7 +199,7 @@ def output_path(arguments: argparse.Namespace, scaling=None, registry=None) -> P
                                  "--keep-unconverged", SUPPORTED_FORMATS))
     if not isinstance(scaling, RawGlobalScaling) or arguments.segmentation:
         # the regions of a run that has them go beside its mesh (pipeline.save_output)
-        outputs += [Output.of(output_labels_path(mesh.path), f"the labels file beside {mesh.option}", JSON)
+        outputs += [Output.of(labels_file_beside(mesh.path), f"the labels file beside {mesh.option}", JSON)
                     for mesh in list(outputs) if mesh is not None and mesh.option in ("-o", "--keep-unconverged")]
     check_outputs(outputs, command_inputs(arguments, scaling, registry), force=arguments.force)
     return output

@@ -316,14 +316,15 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
 
 def _write_run(demo: DemoResult, run: DemoRun, body, force: bool) -> None:
     from allorules.files import write_json
-    from allorules.runs.pipeline import output_labels_path, save_output
+    from allorules.runs.pipeline import save_output
+    from allorules.segment.labels_io import labels_file_beside
 
     if run.outcome is not None and run.error is None:
         run.mesh = demo.folder / f"{run.name}.obj"
         save_output(run.outcome, run.mesh, overwrite=force)
         demo.files.append((f"{run.name} mesh", run.mesh))
-        if output_labels_path(run.mesh).is_file():      # its regions, for allorules measure
-            demo.files.append((f"{run.name} labels", output_labels_path(run.mesh)))
+        if labels_file_beside(run.mesh).is_file():      # its regions, for allorules measure
+            demo.files.append((f"{run.name} labels", labels_file_beside(run.mesh)))
     run.report = demo.folder / f"{run.name}.json"
     document = {"run": run.name, "mode": MODE_TITLES[run.mode], "mass_ratio": run.ratio,
                 "mesh": run.mesh.name if run.mesh else None, "seconds": run.seconds, "error": run.error,

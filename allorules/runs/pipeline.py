@@ -769,11 +769,11 @@ def run(
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:
     """Write the run's output mesh in the input's own layout (UVs, materials, detached parts kept)
     and, where the run had regions, the regions it measured as the output's own labels file beside
-    it (:func:`output_labels_path`), so that the output is measured again with the run's regions and
+    it (``NAME.labels.json``), so that the output is measured again with the run's regions and
     axes, not relabelled as another animal; the input is never overwritten. ``save_mesh`` says on
     the log what the export could not carry over."""
     prepared = run.prepared
-    labels = output_labels_path(path) if run.body.labels is not None else None
+    labels = labels_file_beside(path) if run.body.labels is not None else None
     if labels is not None:      # checked before anything is written
         _check_output_labels(run, labels, overwrite)
     if prepared.source is not None:
@@ -790,16 +790,11 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
 
-def output_labels_path(output: str | Path) -> Path:
-    """Where :func:`save_output` writes an output's regions: ``NAME.labels.json`` beside ``NAME.EXT``."""
-    return labels_file_beside(output)
-
-
 def _check_output_labels(run: Run, labels: Path, overwrite: bool) -> None:
     """An output's labels file never replaces the run's own labels (its labels file, its input's
     labels file beside it), and another file only with ``overwrite``."""
-    inputs = [run.labels_file] + ([labels_file_beside(run.prepared.source_path)] if run.prepared.source_path else [])
-    for given in inputs:
+    beside = labels_file_beside(run.prepared.source_path) if run.prepared.source_path else None
+    for given in (run.labels_file, beside if beside is not None and beside.is_file() else None):
         if given is not None and same_file(labels, Path(given)):
             raise OutputError(f"{labels}: the output's labels file would replace the input's labels "
                               f"{given}; choose another output name")
@@ -848,4 +843,4 @@ def _independent_check(body: Body, result: ScalingResult) -> dict[str, Any]:
 
 __all__ = ["GlobalScaling", "RulesetScaling", "RawGlobalScaling", "LocalScaling", "Scaling", "Run", "prepare",
            "label", "label_working", "scale", "place", "PLACEMENTS", "working", "Working", "run", "save_output",
-           "output_labels_path", "save_picture", "wanted_regions"]
+           "save_picture", "wanted_regions"]
