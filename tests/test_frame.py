@@ -43,11 +43,19 @@ def test_the_frame_read_off_the_regions_is_the_animals_own(preset, pose, seed, w
     assert abs(frame.up @ frame.forward) < 1e-9
 
 
-def test_no_frame_without_a_torso():
+def test_no_frame_without_a_torso_and_one_from_the_legs_there_are():
+    """No chest, or a chest region with no vertex in it: no frame (not one from an empty region's
+    centroid). Hind legs alone (the fore legs labelled chest) still give up and forward."""
     animal = generate_quadruped("horse", 1500)
     names = tuple("body" if name in ("chest", "abdomen") else name for name in animal.region_names)
     assert regions_frame(Body(animal.vertices, animal.faces, animal.labels, names)) is None
     assert regions_frame(Body(animal.vertices, animal.faces)) is None
+    index = {name: number for number, name in enumerate(animal.region_names)}
+    no_chest = np.where(animal.labels == index["chest"], index["abdomen"], animal.labels)
+    assert regions_frame(Body(animal.vertices, animal.faces, no_chest, animal.region_names)) is None
+    hind_only = np.where(animal.labels == index["forelimbs"], index["chest"], animal.labels)
+    frame = regions_frame(Body(animal.vertices, animal.faces, hind_only, animal.region_names))
+    assert degrees(frame.up, UP) < 10.0 and degrees(frame.forward, FORWARD) < 10.0
 
 
 def test_a_body_labelled_without_a_frame_is_given_one_by_the_pipeline(tmp_path):

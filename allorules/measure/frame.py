@@ -31,12 +31,15 @@ from allorules.segment.labeller import up_from_legs
 def regions_frame(body: Body) -> Frame | None:
     """The body's up and forward read off its regions (legs, chest, abdomen); None where it has
     not those regions or they give no direction."""
-    if body.labels is None or not all(body.has_region(name) for name in ("chest", "abdomen")):
+    def present(region: str) -> bool:
+        return body.has_region(region) and bool(body.region_mask(region).any())
+
+    if body.labels is None or not (present("chest") and present("abdomen")):
         return None
     try:
-        limbs = [limb for region in LIMB_REGIONS if body.has_region(region)
+        limbs = [limb for region in LIMB_REGIONS if present(region)
                  for limb in limb_sections(body, region) if limb.sections]
-    except AllorulesError:
+    except (AllorulesError, ValueError, IndexError):   # regions no leg can be cut from: no frame from them
         return None
     if not limbs:
         return None

@@ -7,7 +7,7 @@
 
   ``labels[i]`` indexes ``regions``; ``-1`` means unlabelled. The generator's CLI writes the same.
   Optional: ``labelling`` (who labelled it, how sure), ``frame`` (``{"up": [x, y, z],
-  "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels)
+  "forward": [x, y, z]}``, the animal's axes as the labeller found them, read back with the labels),
   ``faces_sha256`` (the mesh's faces, so that a file is known to be this mesh's: a run's output
   keeps its input's faces, so its input's labels fit it too) and ``heart_girth_tape`` (``{"levels":
   [area quantiles of the chest], "piece": "part"|"torso"|"body", "margin": m}``: where a run put
