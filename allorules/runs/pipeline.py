@@ -694,6 +694,12 @@ class Run:
         document["quality"] = self.quality().as_dict()
         return document
 
+    def user_body(self) -> Body:
+        """The user's prepared body with the run's regions (each vertex takes its working triangle's)."""
+        if self.working is None:
+            return self.body
+        return self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces))
+
     def quality(self) -> QualityReport:
         """What an artist would look for in the output (flipped faces, self-intersections, lumps,
         small features, legs, rules met), measured once."""
@@ -704,9 +710,7 @@ class Run:
             carried = self.working is not None and self.working.binding is not None
             if carried or unfolding.folded:
                 # measured on the working mesh (or before unfolding); the faces written counted too
-                user = self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces)) \
-                    if carried else self.body
-                self._quality.written_flipped = flipped_faces(user, self.body_vertices())
+                self._quality.written_flipped = flipped_faces(self.user_body(), self.body_vertices())
                 self._quality.unfolded = unfolding.unfolded
                 self._quality.unfold_move = unfolding.largest_move / max(float(np.ptp(unfolding.vertices, axis=0).max()), 1e-300)
         return self._quality
@@ -782,10 +786,8 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
     else:
         saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
-    if labels is not None:
-        user = Body(prepared.vertices, prepared.faces)
-        regions = run.body if run.working is None else run.working.labels_to_user(run.body, user)
-        write_labels(labels, replace(regions, tape=heart_girth_tape(run.body)))   # the tape as the run put it
+    if labels is not None:      # the tape as the run put it on its input
+        write_labels(labels, replace(run.user_body(), tape=heart_girth_tape(run.body)))
         log.info("wrote %s: the regions the run measured, which allorules measure reads", labels)
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
