@@ -176,3 +176,106 @@ def test_a_labels_file_far_larger_than_its_mesh_needs_is_not_read(tmp_path):
     path.write_text(json.dumps(horse.labels_document()) + " " * 2_000_000)
     with pytest.raises(SegmentationError, match="too large for the labels of a mesh of"):
         read_labels(path, Body(horse.vertices, horse.faces))
+
+
+@pytest.fixture(scope="module")
+def remeshed(tmp_path_factory):
+    """A generated horse of 3,000 vertices run ×1.5 on a working mesh of 2,000 (remeshed), its
+    output saved with its labels file, and the run."""
+    import trimesh
+
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+
+    folder = tmp_path_factory.mktemp("recorded_working")
+    horse = generate_quadruped("horse", 3000)
+    trimesh.Trimesh(horse.vertices, horse.faces, process=False).export(folder / "horse.obj")
+    run = pipeline.run(folder / "horse.obj", pipeline.RulesetScaling(load_ruleset("quadruped"), 1.5), modes=30,
+                       working_vertices=2000, use_cache=False)
+    assert run.working is not None and run.working.mesh.method == "remeshed"
+    pipeline.save_output(run, folder / "big.obj")
+    return folder, run
+
+
+def test_an_output_is_measured_on_the_working_mesh_its_run_measured(remeshed, capsys):
+    """The output's labels file records the run's working mesh as points of the input; measuring
+    the output takes the same points of the output (the run's working output, to the transfer's
+    sampling error) with the run's own regions, so every exponent is the report's to 0.005. The
+    output remeshed afresh instead (another working size) is off by up to 0.08 here (head mass)."""
+    from allorules.plugins.registry import registry_for
+    from allorules.rules.resolve import load_ruleset
+    from allorules.runs import pipeline
+
+    folder, run = remeshed
+    prepared = pipeline.prepare(folder / "big.obj")
+    work, body = pipeline.labelled_working(prepared, registry=registry_for(None),
+                                           regions=pipeline.wanted_regions(load_ruleset("quadruped")))
+    assert work.mesh.method == "recorded" and work.binding is not None
+    after = run.result.body.vertices
+    assert np.abs(work.mesh.vertices - after).max() < 0.005 * np.ptp(after, axis=0).max()
+    assert body.region_names == run.body.region_names and np.array_equal(body.labels, run.body.labels)
+    assert body.tape is not None and body.frame is not None
+
+    before = measured([str(folder / "horse.obj"), "--working-vertices", "2000"], capsys)
+    again = measured([str(folder / "big.obj")], capsys)
+    assert again["vertices"] == len(run.body.vertices)
+    achieved = {rule["id"]: rule["achieved_exponent"] for rule in run.report()["rules"]}
+    for first, second in zip(before["rules"], again["rules"]):
+        exponent = math.log(second["value"] / first["value"]) / math.log(1.5)
+        assert exponent == pytest.approx(achieved[first["id"]], abs=0.005), first["id"]
+
+
+def test_a_recorded_working_mesh_is_used_only_where_it_fits(remeshed, caplog):
+    """Another working size asked for, a malformed record, or a body moved so far that the recorded
+    points no longer make a mesh: the output is remeshed afresh and the regions carried over."""
+    import logging
+
+    from allorules.mesh.working import WorkingRecord
+    from allorules.plugins.registry import registry_for
+    from allorules.runs import pipeline
+
+    folder, run = remeshed
+    prepared = pipeline.prepare(folder / "big.obj")
+    registry = registry_for(None)
+    work, body = pipeline.labelled_working(prepared, registry=registry, working_vertices=2100)
+    assert work.mesh.method == "remeshed" and body.labels is not None
+
+    record = pipeline.labels_file(prepared).working
+    assert isinstance(record, WorkingRecord) and record.target_vertices == 2000
+    collapsed = prepared.vertices * np.array([1.0, 1e-3, 1.0])       # flattened: slivers everywhere
+    assert record.on(collapsed, prepared.faces) is None
+    assert record.on(prepared.vertices, prepared.faces) is not None
+
+    path = folder / "big.labels.json"
+    document = json.loads(path.read_text())
+    try:
+        path.write_text(json.dumps({**document, "working_mesh": {**document["working_mesh"], "triangles": [10**9]}}))
+        with caplog.at_level(logging.WARNING, logger="allorules"):
+            work, body = pipeline.labelled_working(pipeline.prepare(folder / "big.obj"), registry=registry,
+                                                   working_vertices=2000)
+        assert work.mesh.method == "remeshed" and body.labels is not None
+        assert "working_mesh is malformed" in caplog.text
+    finally:
+        path.write_text(json.dumps(document))
+
+
+def test_a_working_record_gives_back_its_working_mesh_on_its_own_body(tmp_path):
+    """Recorded on the body it was made from and read back from a labels file, the working mesh is
+    the same to 1e-8 of its size (weights kept to 1e-9)."""
+    from allorules.mesh.working import WorkingRecord, make_working_mesh
+    from allorules.segment.labels_io import read_labels_file, write_labels
+
+    horse = generate_quadruped("horse", 3000).body()
+    mesh = make_working_mesh(horse.vertices, horse.faces, 2000)
+    record = WorkingRecord.of(mesh, horse.vertices, horse.faces, labels=np.zeros(len(mesh.vertices), dtype=int))
+    size = np.ptp(horse.vertices, axis=0).max()
+    assert np.abs(record.on(horse.vertices, horse.faces).vertices - mesh.vertices).max() < 1e-12 * size
+    write_labels(tmp_path / "horse.labels.json", horse, record)
+    back = read_labels_file(tmp_path / "horse.labels.json", Body(horse.vertices, horse.faces)).working
+    rebuilt = back.on(horse.vertices, horse.faces)
+    assert rebuilt.method == "recorded" and np.array_equal(rebuilt.faces, mesh.faces)
+    assert np.abs(rebuilt.vertices - mesh.vertices).max() < 1e-8 * size
+    assert np.array_equal(back.labels, record.labels)
+    # made for other faces, the record is not read (the labels are, with a warning)
+    other = Body(horse.vertices, horse.faces[::-1])
+    assert read_labels_file(tmp_path / "horse.labels.json", other).working is None

@@ -59,17 +59,17 @@ def segmented_body(arguments: argparse.Namespace, ruleset, registry):
     """The working body (the prepared body itself up to the working size) with regions from the
     given file or the ruleset's segmenter: what a run measures."""
     from allorules.mesh.working import check_working_vertices
-    from allorules.runs.pipeline import label_working, prepare, wanted_regions, working
+    from allorules.runs.pipeline import labelled_working, prepare, wanted_regions
 
     check_working_vertices(arguments.working_vertices)
     prepared = prepare(arguments.mesh)
-    labelled = label_working(prepared, working(prepared, arguments.working_vertices), registry=registry,
-                             segmenter=ruleset.segmenter, labels=arguments.segmentation or None, up=arguments.up,
-                             forward=arguments.forward, regions=wanted_regions(ruleset),
-                             labels_beside=not arguments.relabel)
+    _, labelled = labelled_working(prepared, registry=registry, working_vertices=arguments.working_vertices,
+                                   segmenter=ruleset.segmenter, labels=arguments.segmentation or None, up=arguments.up,
+                                   forward=arguments.forward, regions=wanted_regions(ruleset),
+                                   labels_beside=not arguments.relabel)
     if arguments.segmentation:
         return labelled, str(arguments.segmentation)
-    beside = labels_beside_input(arguments)     # read where it fits the mesh (pipeline.label_working)
+    beside = labels_beside_input(arguments)     # read where it fits the mesh (pipeline.labelled_working)
     source = labelled.labelling.source if labelled.labelling is not None else ""
     return labelled, beside if beside is not None and source.startswith(f"labels file {beside}") else "automatic"
 

@@ -17,6 +17,11 @@ a mesh of a fixed, documented size and triangle quality made from the user's pre
 * The result is repaired like any input (:func:`allorules.preparation.prepare_mesh`: merged
   vertices, degenerate and non-manifold faces dropped, oriented outward, largest part kept).
 
+:class:`WorkingRecord` keeps a working mesh as points on the body it was made from (each vertex
+a triangle of the body and its barycentric weights there), so that the same points can be taken
+again on that body moved: a run's output is measured on the working mesh its run measured, not on
+a second remesh of its own whose cuts fall elsewhere (``method == "recorded"``).
+
 :func:`make_working_mesh` refuses (one :class:`MeshError` line that says why and what to do) a
 body from which no working mesh can be made: a single open sheet, a surface too thin to
 enclose a volume, or one the remesher cannot handle. :func:`check_working_vertices` refuses a
@@ -58,7 +63,7 @@ class WorkingMesh:
 
     vertices: np.ndarray
     faces: np.ndarray
-    method: str                       # "as-is", "remeshed", "decimated+remeshed", "decimated"
+    method: str                       # "as-is", "remeshed", "decimated+remeshed", "decimated", "recorded"
     source_vertices: int              # vertices of the user's body
     target_vertices: int              # the working size asked for
     seconds: float = 0.0
@@ -72,9 +77,55 @@ class WorkingMesh:
     def describe(self) -> str:
         if self.is_source:
             return f"working mesh: the body itself ({self.source_vertices} vertices, at or below {self.target_vertices})"
+        if self.method == "recorded":
+            return (f"working mesh: {len(self.vertices)} vertices at the points of the body its labels file recorded "
+                    f"(the working mesh of the run that wrote it; target {self.target_vertices})")
         return (f"working mesh: {len(self.vertices)} vertices {self.method} from {self.source_vertices} "
                 f"(target {self.target_vertices}; smallest angle median {self.quality.get('min_angle_median', 0):.1f}°) "
                 f"in {self.seconds:.1f} s")
+
+
+# A recorded working mesh taken again on a body moved so far that its smallest angles' median fell
+# under this (a remesh has 45-55 degrees) is not used: the body is remeshed afresh instead.
+RECORDED_MIN_ANGLE_MEDIAN = 25.0
+
+
+@dataclass(frozen=True)
+class WorkingRecord:
+    """A working mesh as points on the body it was made from: vertex k is the point with barycentric
+    ``weights[k]`` in the body's triangle ``triangle[k]``; ``faces`` are the working mesh's own.
+    ``labels``: the working mesh's regions as its run had them (indices into its labels file's
+    regions), or ``None``. The body must keep its faces (a run's output keeps its input's)."""
+
+    faces: np.ndarray
+    triangle: np.ndarray
+    weights: np.ndarray
+    target_vertices: int
+    labels: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, working: WorkingMesh, vertices: np.ndarray, faces: np.ndarray,
+           labels: np.ndarray | None = None) -> WorkingRecord:
+        """Where each vertex of ``working`` lies on the body (vertices, faces) it was made from (a
+        remesh projects every vertex onto the body: the offsets are round-off)."""
+        from allorules.mesh.transfer import bind
+
+        on_body = bind(working.vertices, vertices, faces)
+        return cls(np.asarray(working.faces, dtype=np.int64), on_body.triangle, on_body.weights,
+                   working.target_vertices, None if labels is None else np.asarray(labels, dtype=np.int64))
+
+    def on(self, vertices: np.ndarray, faces: np.ndarray) -> WorkingMesh | None:
+        """The working mesh at the recorded points of the body (vertices, faces), or ``None`` where
+        those points no longer make a working mesh (the body moved so far that its triangles'
+        smallest angles' median fell under :data:`RECORDED_MIN_ANGLE_MEDIAN`, or one has no area)."""
+        corners = np.asarray(faces, dtype=np.int64)[self.triangle]
+        points = np.einsum("ij,ijk->ik", self.weights, np.asarray(vertices, dtype=np.float64)[corners])
+        quality = triangle_quality(points, self.faces)
+        if quality["min_angle_median"] < RECORDED_MIN_ANGLE_MEDIAN or quality["min_angle"] <= 0.0:
+            log.info("the recorded working mesh no longer fits the body (smallest angles' median %.1f°); remeshing",
+                     quality["min_angle_median"])
+            return None
+        return WorkingMesh(points, self.faces.copy(), "recorded", len(vertices), self.target_vertices, 0.0, quality)
 
 
 def check_working_vertices(count: int | None) -> int:

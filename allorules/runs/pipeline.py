@@ -52,6 +52,7 @@ from allorules.mesh.transfer import Binding, bind, carry_deformation, carry_labe
 from allorules.mesh.unfold import Unfolding, unfold_faces
 from allorules.mesh.working import (
     WorkingMesh,
+    WorkingRecord,
     check_working_vertices,
     make_working_mesh,
 )
@@ -73,9 +74,11 @@ from allorules.runs.results import (
 )
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.segment.labels_io import (
+    LabelsFile,
     UnsaidMeshError,
     labels_file_beside,
     read_labels,
+    read_labels_file,
     read_seg,
     write_labels,
 )
@@ -214,29 +217,58 @@ class Working:
                 "quality": {key: round(float(value), 4) for key, value in mesh.quality.items()}}
 
 
-def working(prepared: PreparedMesh, vertices: int | None = None) -> Working:
+def working(prepared: PreparedMesh, vertices: int | None = None, record: WorkingRecord | None = None) -> Working:
     """The working mesh of a prepared body: the body itself at or below ``vertices`` (default
-    :data:`allorules.mesh.working.WORKING_VERTICES`), else a remesh of that size, bound to it."""
-    mesh = make_working_mesh(prepared.vertices, prepared.faces, vertices,
-                             name=str(prepared.source_path) if prepared.source_path else "mesh")
+    :data:`allorules.mesh.working.WORKING_VERTICES`), else a remesh of that size, bound to it. A
+    ``record`` (a run's output's labels file's) gives the working mesh at its recorded points of the
+    body instead, unless another size is asked or the points no longer make a mesh."""
+    mesh = None
+    if record is not None and (vertices is None or int(vertices) == record.target_vertices):
+        mesh = record.on(prepared.vertices, prepared.faces)
+    if mesh is None:
+        mesh = make_working_mesh(prepared.vertices, prepared.faces, vertices,
+                                 name=str(prepared.source_path) if prepared.source_path else "mesh")
     binding = None if mesh.is_source else bind(prepared.vertices, mesh.vertices, mesh.faces)
     return Working(mesh, binding)
+
+
+def labelled_working(prepared: PreparedMesh, *, registry: PluginRegistry, working_vertices: int | None = None,
+                     segmenter: SegmenterUse | None = None, labels: str | Path | VertexRegions | None = None,
+                     given: Body | None = None, up: np.ndarray | None = None, forward: np.ndarray | None = None,
+                     regions: Iterable[str] = QUADRUPED_REGIONS, labels_beside: bool = True) -> tuple[Working, Body]:
+    """The working mesh and the working body with regions, as a run and ``allorules measure`` get
+    them (:func:`working`, :func:`label_working`): with no ``labels`` or ``given`` body, a mesh
+    file's own labels file beside it (``labels_beside``) gives its regions and, where it recorded
+    the working mesh its run measured on (a run's output's), that working mesh at the same points."""
+    beside = labels_file(prepared) if labels is None and given is None and labels_beside else None
+    work = working(prepared, working_vertices, beside.working if beside is not None else None)
+    body = label_working(prepared, work, registry=registry, segmenter=segmenter, labels=labels, given=given, up=up,
+                         forward=forward, regions=regions, labels_beside=False, beside=beside)
+    return work, body
 
 
 def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegistry,
                   segmenter: SegmenterUse | None = None, labels: str | Path | VertexRegions | None = None,
                   given: Body | None = None, up: np.ndarray | None = None, forward: np.ndarray | None = None,
-                  regions: Iterable[str] = QUADRUPED_REGIONS, labels_beside: bool = True) -> Body:
+                  regions: Iterable[str] = QUADRUPED_REGIONS, labels_beside: bool = True,
+                  beside: LabelsFile | None = None) -> Body:
     """The working body with regions: from a labels file, regions given per input vertex or a
     ``given`` labelled body (all for the user's prepared body, carried across to the working mesh),
-    else (``labels_beside``) from the mesh file's own labels file beside it where it fits the mesh
-    (a run's output measured with the regions the run measured: :func:`save_output`), else from
-    the segmenter on the working mesh itself; regions not among ``regions`` fold into their
-    neighbour."""
-    if labels is None and given is None and labels_beside:
-        given = _labels_beside(prepared)
-        if given is not None and (up is not None or forward is not None):
+    else from the mesh file's own labels file beside it where it fits the mesh (``beside``, already
+    read, or read here with ``labels_beside``: a run's output measured with the regions the run
+    measured, :func:`save_output`), else from the segmenter on the working mesh itself; regions not
+    among ``regions`` fold into their neighbour. On a working mesh made from the labels file's
+    record its recorded regions are taken as they are (nothing carried)."""
+    if labels is None and given is None and beside is None and labels_beside:
+        beside = labels_file(prepared)
+    if labels is None and given is None and beside is not None:
+        given = beside.body
+        if up is not None or forward is not None:
             log.warning("--up/--forward are ignored: the regions and axes come from the labels file beside the mesh")
+        record = beside.working
+        if work.mesh.method == "recorded" and record is not None and record.labels is not None:
+            return _framed(fold_regions(Body(work.mesh.vertices, work.mesh.faces, record.labels, given.region_names,
+                                             given.frame, given.labelling, tape=given.tape), tuple(regions)), given=True)
     if labels is None and given is None:
         return _framed(label(work.body(), registry=registry, segmenter=segmenter, up=up, forward=forward,
                              regions=regions))
@@ -342,16 +374,17 @@ def label(
     return fold_regions(labelled, tuple(regions))
 
 
-def _labels_beside(prepared: PreparedMesh) -> Body | None:
-    """The prepared body labelled from ``NAME.labels.json`` beside its file, where there is one made
-    for this mesh (same faces); one made for another mesh is passed over, saying so."""
+def labels_file(prepared: PreparedMesh) -> LabelsFile | None:
+    """The prepared body's own ``NAME.labels.json`` beside its file, where there is one made for this
+    mesh (same faces): its regions and any working mesh it recorded. One made for another mesh is
+    passed over, saying so."""
     if prepared.source_path is None:
         return None
     path = labels_file_beside(prepared.source_path)
     if not path.is_file():
         return None
     try:
-        labelled = _read_labels_file(path, Body(prepared.vertices, prepared.faces), same_faces=True)
+        found = read_labels_file(path, Body(prepared.vertices, prepared.faces), same_faces=True)
     except UnsaidMeshError as error:      # never read beside a mesh before: passed over, as then
         log.info("%s; not read beside the mesh (give it with --segmentation to use it)", error)
         return None
@@ -359,14 +392,17 @@ def _labels_beside(prepared: PreparedMesh) -> Body | None:
         log.warning("%s; labelling the mesh afresh (give a labels file with --segmentation to use one)", error)
         return None
     log.info("regions from %s, beside the mesh (--relabel labels it afresh)", path)
-    return labelled
+    return replace(found, body=_labelled_from(path, found.body))
 
 
-def _read_labels_file(path: Path, body: Body, *, same_faces: bool = False) -> Body:
+def _read_labels_file(path: Path, body: Body) -> Body:
     if path.suffix.lower() == ".seg":
-        labelled = read_seg(path, body, QUADRUPED_REGIONS)
-    else:
-        labelled = read_labels(path, body, same_faces=same_faces)
+        return _labelled_from(path, read_seg(path, body, QUADRUPED_REGIONS))
+    return _labelled_from(path, read_labels(path, body))
+
+
+def _labelled_from(path: Path, labelled: Body) -> Body:
+    """``labelled`` saying it came from the labels file ``path`` (and what its segmenter said)."""
     source = Labelling(f"labels file {path}")
     if labelled.labelling is not None:   # a labels file written by a segmenter keeps what it said
         source = Labelling(f"labels file {path} ({labelled.labelling.source})", labelled.labelling.confidence,
@@ -745,14 +781,15 @@ def run(
     check_working_vertices(working_vertices)            # before any work
     ruleset = scaling.ruleset if isinstance(scaling, RulesetScaling) else None
     prepared = prepare(source)
-    work = working(prepared, working_vertices)
     given = source if isinstance(source, Body) and source.labels is not None else None
     if isinstance(scaling, RawGlobalScaling) and labels is None and given is None:
+        work = working(prepared, working_vertices)
         body = work.body()                              # Eq. 4 once measures nothing: no regions needed
     else:
-        body = label_working(prepared, work, registry=registry, segmenter=segmenter or (ruleset.segmenter if ruleset
-                             else None), labels=labels, given=given, up=up, forward=forward,
-                             regions=wanted_regions(ruleset), labels_beside=labels_beside)
+        work, body = labelled_working(prepared, registry=registry, working_vertices=working_vertices,
+                                      segmenter=segmenter or (ruleset.segmenter if ruleset else None), labels=labels,
+                                      given=given, up=up, forward=forward, regions=wanted_regions(ruleset),
+                                      labels_beside=labels_beside)
     labels_file = Path(labels) if isinstance(labels, (str, Path)) else None
     try:
         result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
@@ -786,8 +823,10 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
     else:
         saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
-    if labels is not None:      # the tape as the run put it on its input
-        write_labels(labels, replace(run.user_body(), tape=heart_girth_tape(run.body)))
+    if labels is not None:      # the tape as the run put it on its input, and the working mesh it measured on
+        record = None if run.working is None else WorkingRecord.of(run.working.mesh, prepared.vertices, prepared.faces,
+                                                                    run.body.labels)
+        write_labels(labels, replace(run.user_body(), tape=heart_girth_tape(run.body)), record)
         log.info("wrote %s: the regions the run measured, which allorules measure reads", labels)
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
 
@@ -844,5 +883,5 @@ def _independent_check(body: Body, result: ScalingResult) -> dict[str, Any]:
 
 
 __all__ = ["GlobalScaling", "RulesetScaling", "RawGlobalScaling", "LocalScaling", "Scaling", "Run", "prepare",
-           "label", "label_working", "scale", "place", "PLACEMENTS", "working", "Working", "run", "save_output",
-           "save_picture", "wanted_regions"]
+           "label", "label_working", "labelled_working", "labels_file", "scale", "place", "PLACEMENTS", "working",
+           "Working", "run", "save_output", "save_picture", "wanted_regions"]

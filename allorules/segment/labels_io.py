@@ -11,7 +11,11 @@
   ``faces_sha256`` (the mesh's faces, so that a file is known to be this mesh's: a run's output
   keeps its input's faces, so its input's labels fit it too) and ``heart_girth_tape`` (``{"levels":
   [area quantiles of the chest], "piece": "part"|"torso"|"body", "margin": m}``: where a run put
-  heart girth's tape on its input, so that its output is measured there too).
+  heart girth's tape on its input, so that its output is measured there too) and ``working_mesh``
+  (``{"target_vertices": t, "faces": [...], "triangles": [...], "weights": [...], "labels": [...]}``:
+  the working mesh its run measured on, as points of this mesh, each vertex a triangle of the
+  mesh and three barycentric weights, with its regions: :class:`~allorules.mesh.working.WorkingRecord`,
+  read back by :func:`read_labels_file`).
   ``NAME.labels.json`` beside ``NAME.EXT`` (:func:`labels_file_beside`) is the mesh's own: ``allorules
   scale`` writes its output's there, and ``scale`` and ``measure`` read it when it fits the mesh.
 * **Princeton segmentation benchmark ``.seg``**: one integer per line, one line per FACE, in face
@@ -34,7 +38,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +49,7 @@ from allorules.body import UNLABELLED, Body, Frame, HeartGirthTape, Labelling
 from allorules.errors import RulesetError, SegmentationError, SourceLocation
 from allorules.files import atomic_write, text_size_problem
 from allorules.mesh.geometry import face_areas
+from allorules.mesh.working import MAX_WORKING_VERTICES, WorkingRecord
 from allorules.segment.regions import QUADRUPED_REGIONS
 
 log = logging.getLogger("allorules")
@@ -77,8 +82,18 @@ def faces_fingerprint(faces: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(faces, dtype="<i8").tobytes()).hexdigest()
 
 
-def write_labels(path: str | Path, body: Body) -> None:
-    """Write the body's per-vertex labels as an allorules labels file (JSON)."""
+@dataclass(frozen=True)
+class LabelsFile:
+    """What a labels file gives a body: the body labelled and, where the file recorded one (a run's
+    output's), the working mesh its run measured on as points of the body."""
+
+    body: Body
+    working: WorkingRecord | None = None
+
+
+def write_labels(path: str | Path, body: Body, working: WorkingRecord | None = None) -> None:
+    """Write the body's per-vertex labels as an allorules labels file (JSON), with the ``working``
+    mesh its run measured on where given (the weights to 1e-9: a point moves by 1e-9 of an edge)."""
     if body.labels is None:
         raise SegmentationError("the body has no labels to write; segment it first")
     document = {
@@ -96,19 +111,33 @@ def write_labels(path: str | Path, body: Body) -> None:
     if body.tape is not None:        # where heart girth's tape went on the run's input (optional when read)
         document["heart_girth_tape"] = {"levels": [float(level) for level in body.tape.levels],
                                         "piece": body.tape.piece, "margin": float(body.tape.margin)}
+    if working is not None:
+        document["working_mesh"] = {
+            "target_vertices": int(working.target_vertices),
+            "faces": np.asarray(working.faces, dtype=np.int64).ravel().tolist(),
+            "triangles": np.asarray(working.triangle, dtype=np.int64).tolist(),
+            "weights": np.round(np.asarray(working.weights, dtype=float), 9).ravel().tolist(),
+            "labels": None if working.labels is None else np.asarray(working.labels, dtype=np.int64).tolist()}
     atomic_write(path, json.dumps(document, separators=(",", ":")) + "\n")
 
 
 def labels_file_limit(vertex_count: int) -> int:
     """The largest labels file read for a mesh of ``vertex_count`` vertices, in bytes: room for a
-    padded label per vertex, the frame, the tape and the notes (1 MB)."""
-    return 16 * vertex_count + 1_000_000
+    padded label per vertex, a recorded working mesh (at most ~100 bytes a vertex, and no more
+    vertices than the mesh or the largest working size), the frame, the tape and the notes (1 MB)."""
+    return 16 * vertex_count + 100 * min(vertex_count, 2 * MAX_WORKING_VERTICES) + 1_000_000
 
 
 def read_labels(path: str | Path, body: Body, *, same_faces: bool = False) -> Body:
-    """The body with the labels of an allorules labels file; checked against the body's vertex
-    count and, where the file has them, its faces (another mesh's faces: refused with
-    ``same_faces``, else used with a warning; ``same_faces`` also refuses a file without them)."""
+    """The body with the labels of an allorules labels file (:func:`read_labels_file`)."""
+    return read_labels_file(path, body, same_faces=same_faces).body
+
+
+def read_labels_file(path: str | Path, body: Body, *, same_faces: bool = False) -> LabelsFile:
+    """The body with the labels of an allorules labels file, and the working mesh it recorded; checked
+    against the body's vertex count and, where the file has them, its faces (another mesh's faces:
+    refused with ``same_faces``, else used with a warning; ``same_faces`` also refuses a file without
+    them). A recorded working mesh is read only for the faces it was made on."""
     path = Path(path)
     try:
         size, largest = path.stat().st_size, labels_file_limit(body.vertex_count)
@@ -153,7 +182,46 @@ def read_labels(path: str | Path, body: Body, *, same_faces: bool = False) -> Bo
         )
     labelled = body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")),
                                 _read_frame(document.get("frame")))
-    return replace(labelled, tape=_read_tape(document.get("heart_girth_tape")))
+    labelled = replace(labelled, tape=_read_tape(document.get("heart_girth_tape")))
+    same = fingerprint == faces_fingerprint(body.faces)
+    working = _read_working(document.get("working_mesh"), body, len(regions), path) if same else None
+    return LabelsFile(labelled, working)
+
+
+def _read_working(value, body: Body, region_count: int, path: Path) -> WorkingRecord | None:
+    """The optional ``working_mesh`` of a labels file (a malformed one is ignored, saying so: the mesh
+    is then remeshed afresh and its labels carried over)."""
+    if value is None:
+        return None
+    try:
+        if not isinstance(value, dict):
+            raise ValueError("not an object")
+        faces, triangle = _integers(value.get("faces")).reshape(-1, 3), _integers(value.get("triangles"))
+        weights = np.asarray(value.get("weights"), dtype=float).reshape(-1, 3)
+        target = value.get("target_vertices")
+        labels = None if value.get("labels") is None else _integers(value.get("labels"))
+        count = len(triangle)
+        if not 4 <= count <= 2 * MAX_WORKING_VERTICES or len(weights) != count or not len(faces):
+            raise ValueError(f"{count} vertices, {len(weights)} weights")
+        if triangle.min() < 0 or triangle.max() >= len(body.faces) or faces.min() < 0 or faces.max() >= count:
+            raise ValueError("an index out of range")
+        if not np.all(np.isfinite(weights)) or weights.min() < -1e-6 or weights.max() > 1 + 1e-6:
+            raise ValueError("a weight outside [0, 1]")
+        if isinstance(target, bool) or not isinstance(target, int) or not 1 <= target <= MAX_WORKING_VERTICES:
+            raise ValueError("target_vertices")
+        if labels is not None and (len(labels) != count or labels.min() < UNLABELLED or labels.max() >= region_count):
+            raise ValueError("labels")
+    except (TypeError, ValueError) as error:
+        log.warning("%s: its working_mesh is malformed (%s); ignored, the mesh is remeshed", path, error)
+        return None
+    return WorkingRecord(faces, triangle, weights, target, labels)
+
+
+def _integers(value) -> np.ndarray:
+    array = np.asarray(value)
+    if array.ndim != 1 or array.dtype.kind not in "iu" or not len(array):
+        raise ValueError("expected a list of integers")
+    return array.astype(np.int64)
 
 
 def _read_labelling(value) -> Labelling | None:
