@@ -10,6 +10,10 @@ measure --json`` three ways: as written (the output with the labels file beside 
 segment`` on the input; the output keeps the input's vertices in their order) and each labelled
 afresh (``--relabel``). Prints, per run, each rule's achieved exponent both ways against its target, and the head's
 vertex count each way. Record what it says in docs/measurements.md.
+
+``--inputs DIR``: the inputs are ``DIR/NAME.obj`` where one is there (runs on one's own variants,
+e.g. an animal subdivided to 200k vertices, scaled with ``allorules scale NAME.obj -o NAME-xR.obj
+--report NAME-xR.json``), else the shared mesh.
 """
 from __future__ import annotations
 
@@ -25,8 +29,11 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 ALLORULES = Path(sys.executable).parent / "allorules"
 
 
-def source(name: str) -> Path:
-    """The shared mesh a gallery run named ``name`` scaled."""
+def source(name: str, inputs: Path | None = None) -> Path:
+    """The mesh a gallery run named ``name`` scaled: ``inputs/NAME.obj`` where given and there, else
+    the shared mesh."""
+    if inputs is not None and (inputs / f"{name}.obj").is_file():
+        return inputs / f"{name}.obj"
     return SHARED / "psb-fourleg" / f"{name[4:]}.off" if name.startswith("psb-") else SHARED / f"{name}.obj"
 
 
@@ -62,22 +69,24 @@ def head_count(labels: dict | None) -> int | None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("gallery", type=Path)
+    parser.add_argument("--inputs", type=Path, help="folder of the runs' inputs (NAME.obj), where not shared meshes")
     arguments = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         for report_path in sorted(path for path in arguments.gallery.glob("*-x*.json")
                                   if not path.name.endswith(".labels.json")):   # the outputs' own labels files
             name, ratio = report_path.stem.rsplit("-x", 1)
+            mesh = source(name, arguments.inputs)
             report, output = json.loads(report_path.read_text()), report_path.with_suffix(".obj")
             if not report.get("converged") or not output.exists():
                 print(f"{report_path.stem}: not converged, not measured")
                 continue
             input_labels, output_labels = folder / f"{name}.labels.json", folder / f"{report_path.stem}.labels.json"
-            labelled_in, labelled_out = segment(source(name), input_labels), segment(output, output_labels)
-            afresh_in = measure(source(name), relabel=True)
+            labelled_in, labelled_out = segment(mesh, input_labels), segment(output, output_labels)
+            afresh_in = measure(mesh, relabel=True)
             measured = {
                 "as written": (afresh_in, measure(output)),
-                "input's labels": (measure(source(name), input_labels), measure(output, input_labels)),
+                "input's labels": (measure(mesh, input_labels), measure(output, input_labels)),
                 "afresh": (afresh_in, measure(output, relabel=True)),
             }
             targets = {rule["id"]: rule["exponent"] for rule in report["rules"]}
