@@ -218,7 +218,8 @@ def test_an_output_is_measured_on_the_working_mesh_its_run_measured(remeshed, ca
 
     before = measured([str(folder / "horse.obj"), "--working-vertices", "2000"], capsys)
     again = measured([str(folder / "big.obj")], capsys)
-    assert again["vertices"] == len(run.body.vertices)
+    assert again["vertices"] == len(run.body.vertices) and again["working_mesh"] == "recorded"
+    assert before["working_mesh"] == "remeshed"
     achieved = {rule["id"]: rule["achieved_exponent"] for rule in run.report()["rules"]}
     for first, second in zip(before["rules"], again["rules"]):
         exponent = math.log(second["value"] / first["value"]) / math.log(1.5)

@@ -56,22 +56,24 @@ def register(subcommands: argparse._SubParsersAction) -> None:
 
 
 def segmented_body(arguments: argparse.Namespace, ruleset, registry):
-    """The working body (the prepared body itself up to the working size) with regions from the
-    given file or the ruleset's segmenter: what a run measures."""
+    """The working body (the prepared body itself up to the working size, or the working mesh its
+    labels file recorded) with regions from the given file or the ruleset's segmenter: what a run
+    measures; where its regions came from; and the working mesh (``None``: the body itself)."""
     from allorules.mesh.working import check_working_vertices
     from allorules.runs.pipeline import labelled_working, prepare, wanted_regions
 
     check_working_vertices(arguments.working_vertices)
     prepared = prepare(arguments.mesh)
-    _, labelled = labelled_working(prepared, registry=registry, working_vertices=arguments.working_vertices,
+    work, labelled = labelled_working(prepared, registry=registry, working_vertices=arguments.working_vertices,
                                    segmenter=ruleset.segmenter, labels=arguments.segmentation or None, up=arguments.up,
                                    forward=arguments.forward, regions=wanted_regions(ruleset),
                                    labels_beside=not arguments.relabel)
+    mesh = None if work.binding is None else work.mesh
     if arguments.segmentation:
-        return labelled, str(arguments.segmentation)
+        return labelled, str(arguments.segmentation), mesh
     beside = labels_beside_input(arguments)     # read where it fits the mesh (pipeline.labelled_working)
     source = labelled.labelling.source if labelled.labelling is not None else ""
-    return labelled, beside if beside is not None and source.startswith(f"labels file {beside}") else "automatic"
+    return labelled, beside if beside is not None and source.startswith(f"labels file {beside}") else "automatic", mesh
 
 
 def run(arguments: argparse.Namespace) -> int:
@@ -88,7 +90,7 @@ def run(arguments: argparse.Namespace) -> int:
                   {"input mesh": arguments.mesh, "labels file": arguments.segmentation,
                    "input's labels file": labels_beside_input(arguments), "ruleset": ruleset.path,
                    "plugin": plugin_files(registry, arguments)}, force=arguments.force)
-    body, source = segmented_body(arguments, ruleset, registry)
+    body, source, working_mesh = segmented_body(arguments, ruleset, registry)
     missing = [rule.region for rule in ruleset.rules if rule.region and rule.region not in body.region_names]
     if missing:
         raise SegmentationError(
@@ -101,6 +103,7 @@ def run(arguments: argparse.Namespace) -> int:
         "labels": body.labelling.as_dict() if body.labelling else None,
         "ruleset": ruleset.name,
         "vertices": int(body.vertex_count),
+        "working_mesh": None if working_mesh is None else working_mesh.method,   # "recorded": its run's
         "frame": None if body.frame is None else {"up": [float(x) for x in body.frame.up],
                                                   "forward": [float(x) for x in body.frame.forward]},
         "body_mass": _finite(body_mass(body), "body mass"),

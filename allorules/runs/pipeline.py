@@ -225,6 +225,8 @@ def working(prepared: PreparedMesh, vertices: int | None = None, record: Working
     mesh = None
     if record is not None and (vertices is None or int(vertices) == record.target_vertices):
         mesh = record.on(prepared.vertices, prepared.faces)
+        if mesh is not None:
+            log.info("%s", mesh.describe())
     if mesh is None:
         mesh = make_working_mesh(prepared.vertices, prepared.faces, vertices,
                                  name=str(prepared.source_path) if prepared.source_path else "mesh")
