@@ -241,7 +241,7 @@ def test_a_recorded_working_mesh_is_used_only_where_it_fits(remeshed, caplog):
     work, body = pipeline.labelled_working(prepared, registry=registry, working_vertices=2100)
     assert work.mesh.method == "remeshed" and body.labels is not None
 
-    record = pipeline.labels_file(prepared).working
+    record = pipeline.read_labels_beside(prepared).working
     assert isinstance(record, WorkingRecord) and record.target_vertices == 2000
     collapsed = prepared.vertices * np.array([1.0, 1e-3, 1.0])       # flattened: slivers everywhere
     assert record.on(collapsed, prepared.faces) is None

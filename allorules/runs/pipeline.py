@@ -242,7 +242,7 @@ def labelled_working(prepared: PreparedMesh, *, registry: PluginRegistry, workin
     them (:func:`working`, :func:`label_working`): with no ``labels`` or ``given`` body, a mesh
     file's own labels file beside it (``labels_beside``) gives its regions and, where it recorded
     the working mesh its run measured on (a run's output's), that working mesh at the same points."""
-    beside = labels_file(prepared) if labels is None and given is None and labels_beside else None
+    beside = read_labels_beside(prepared) if labels is None and given is None and labels_beside else None
     work = working(prepared, working_vertices, beside.working if beside is not None else None)
     body = label_working(prepared, work, registry=registry, segmenter=segmenter, labels=labels, given=given, up=up,
                          forward=forward, regions=regions, labels_beside=False, beside=beside)
@@ -262,7 +262,7 @@ def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegi
     among ``regions`` fold into their neighbour. On a working mesh made from the labels file's
     record its recorded regions are taken as they are (nothing carried)."""
     if labels is None and given is None and beside is None and labels_beside:
-        beside = labels_file(prepared)
+        beside = read_labels_beside(prepared)
     if labels is None and given is None and beside is not None:
         given = beside.body
         if up is not None or forward is not None:
@@ -376,7 +376,7 @@ def label(
     return fold_regions(labelled, tuple(regions))
 
 
-def labels_file(prepared: PreparedMesh) -> LabelsFile | None:
+def read_labels_beside(prepared: PreparedMesh) -> LabelsFile | None:
     """The prepared body's own ``NAME.labels.json`` beside its file, where there is one made for this
     mesh (same faces): its regions and any working mesh it recorded. One made for another mesh is
     passed over, saying so."""
@@ -885,5 +885,5 @@ def _independent_check(body: Body, result: ScalingResult) -> dict[str, Any]:
 
 
 __all__ = ["GlobalScaling", "RulesetScaling", "RawGlobalScaling", "LocalScaling", "Scaling", "Run", "prepare",
-           "label", "label_working", "labelled_working", "labels_file", "scale", "place", "PLACEMENTS", "working",
+           "label", "label_working", "labelled_working", "read_labels_beside", "scale", "place", "PLACEMENTS", "working",
            "Working", "run", "save_output", "save_picture", "wanted_regions"]
