@@ -245,24 +245,22 @@ def labelled_working(prepared: PreparedMesh, *, registry: PluginRegistry, workin
     beside = read_labels_beside(prepared) if labels is None and given is None and labels_beside else None
     work = working(prepared, working_vertices, beside.working if beside is not None else None)
     body = label_working(prepared, work, registry=registry, segmenter=segmenter, labels=labels, given=given, up=up,
-                         forward=forward, regions=regions, labels_beside=False, beside=beside)
+                         forward=forward, regions=regions, beside=beside)
     return work, body
 
 
 def label_working(prepared: PreparedMesh, work: Working, *, registry: PluginRegistry,
                   segmenter: SegmenterUse | None = None, labels: str | Path | VertexRegions | None = None,
                   given: Body | None = None, up: np.ndarray | None = None, forward: np.ndarray | None = None,
-                  regions: Iterable[str] = QUADRUPED_REGIONS, labels_beside: bool = True,
-                  beside: LabelsFile | None = None) -> Body:
+                  regions: Iterable[str] = QUADRUPED_REGIONS, beside: LabelsFile | None = None) -> Body:
     """The working body with regions: from a labels file, regions given per input vertex or a
     ``given`` labelled body (all for the user's prepared body, carried across to the working mesh),
-    else from the mesh file's own labels file beside it where it fits the mesh (``beside``, already
-    read, or read here with ``labels_beside``: a run's output measured with the regions the run
-    measured, :func:`save_output`), else from the segmenter on the working mesh itself; regions not
-    among ``regions`` fold into their neighbour. On a working mesh made from the labels file's
-    record its recorded regions are taken as they are (nothing carried)."""
-    if labels is None and given is None and beside is None and labels_beside:
-        beside = read_labels_beside(prepared)
+    else from the mesh file's own labels file beside it (``beside``, as :func:`read_labels_beside`
+    read it: a run's output measured with the regions the run measured, :func:`save_output`), else
+    from the segmenter on the working mesh itself; regions not among ``regions`` fold into their
+    neighbour. On a working mesh made from the labels file's record its recorded regions are taken
+    as they are (nothing carried). :func:`labelled_working` reads the file and makes the working
+    mesh for it."""
     if labels is None and given is None and beside is not None:
         given = beside.body
         if up is not None or forward is not None:
@@ -778,7 +776,7 @@ def run(
     ``working_vertices``: the working mesh's size (default
     :data:`allorules.mesh.working.WORKING_VERTICES`; a body at or below it is used as it is).
     ``labels_beside``: with no ``labels``, a mesh file's own ``NAME.labels.json`` beside it is read
-    where it fits the mesh (:func:`label_working`); ``False`` labels it afresh."""
+    where it fits the mesh (:func:`labelled_working`); ``False`` labels it afresh."""
     registry = registry if registry is not None else registry_for(None)
     check_working_vertices(working_vertices)            # before any work
     ruleset = scaling.ruleset if isinstance(scaling, RulesetScaling) else None

@@ -166,7 +166,8 @@ def read_labels_file(path: str | Path, body: Body, *, same_faces: bool = False) 
             "labels must come from this exact mesh (after the same preparation)"
         )
     fingerprint = document.get("faces_sha256")
-    if fingerprint != faces_fingerprint(body.faces):
+    same = fingerprint == faces_fingerprint(body.faces)
+    if not same:
         if same_faces and fingerprint is None:
             raise UnsaidMeshError(f"{path}: does not say which mesh it was made for (an older labels file)")
         if same_faces:
@@ -183,7 +184,6 @@ def read_labels_file(path: str | Path, body: Body, *, same_faces: bool = False) 
     labelled = body.with_labels(labels, tuple(regions), _read_labelling(document.get("labelling")),
                                 _read_frame(document.get("frame")))
     labelled = replace(labelled, tape=_read_tape(document.get("heart_girth_tape")))
-    same = fingerprint == faces_fingerprint(body.faces)
     working = _read_working(document.get("working_mesh"), body, len(regions), path) if same else None
     return LabelsFile(labelled, working)
 
