@@ -1,7 +1,7 @@
 """Masses (METHOD §3) as volumes: the body's enclosed volume and each region's with its open
-boundaries capped (density cancels in every ratio). The head's mass counts its ears, horns,
-antlers and trunk (:func:`allorules.segment.regions.parts_of`), as the paper's head does, whether
-or not the labeller cut those apart.
+boundaries capped (density cancels in every ratio). A region's mass counts what grows from it
+(ears and horns on the head, a tail on the abdomen: :func:`allorules.segment.regions.appendages_of`),
+as the paper's regions do, whether or not the labeller cut those apart.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from allorules.measure.cache import measured
 from allorules.measure.parts import _region_faces
 from allorules.mesh.geometry import enclosed_volume
 from allorules.mesh.topology import cap_holes, hole_caps
-from allorules.segment.regions import parts_of
+from allorules.segment.regions import appendages_of
 
 
 def capped(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,17 +44,16 @@ def body_mass(body: Body) -> float:
     return cache.body_mass
 
 
-def region_mass(body: Body, region: str, *, parts: bool = True) -> float:
-    """Mass of a region (as a volume): its faces and, unless ``parts`` is False, those of the regions
-    that are part of it (:func:`parts_of`: the head's ears and horns), with every open boundary loop
-    capped.
+def region_mass(body: Body, region: str, *, appendages: bool = True) -> float:
+    """Mass of a region (as a volume): its faces and, unless ``appendages`` is False, those of the
+    regions that grow from it (:func:`appendages_of`), with every open boundary loop capped.
 
     Ears and horns are cut from a head at one tessellation of an animal and left in it at another
     (the cow 381: its head's own mass moved by 20 % across four tessellations of one surface, with
     its ears and horns 2.4 %); the head's mass is the paper's head, ears and horns included.
-    ``parts=False``: the region's own faces only (shares of the body that add up to it)."""
-    names = (region,) + (parts_of(region, body.region_names) if parts else ())
-    key = "+".join(names) if parts else f"{region} alone"
+    ``appendages=False``: the region's own faces only (shares of the body that add up to it)."""
+    names = (region,) + (appendages_of(region, body.region_names) if appendages else ())
+    key = "+".join(names) if appendages else f"{region} alone"
     cache = measured(body).region_mass
     if key not in cache:
         selection = _region_faces(body, region)
