@@ -214,7 +214,7 @@ def test_the_trunks_verdict_says_where_the_rules_leave_the_mass(animal, registry
 
     body = animal.body()
     quadruped = load_ruleset("quadruped", registry)
-    shares = {name: region_mass(body, name, appendages=False) / body_mass(body) for name in body.region_names}
+    shares = {name: region_mass(body, name) / body_mass(body) for name in body.region_names}
     expected = (2.0 - shares["head"] * 2 ** 0.7 - shares["abdomen"] * 2 ** 0.74 - (shares["neck"] + shares["tail"]) * 2) \
         / (shares["chest"] + shares["forelimbs"] + shares["hindlimbs"])
     grown = mass_left(quadruped, body, 2.0)

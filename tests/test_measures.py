@@ -161,22 +161,6 @@ def test_region_mass_of_the_legs():
     assert region_mass(body, "forelimbs") + region_mass(body, "chest") == pytest.approx(body_mass(body), rel=1e-9)
 
 
-def test_a_regions_mass_counts_what_grows_from_it_whether_cut_apart_or_not():
-    """The abdomen's mass is the same with the tail labelled apart and with the tail folded into it
-    (as the head's is with its ears and horns): a labeller that cuts an appendage at one
-    tessellation and not at another measures the same region."""
-    from allorules.segment.regions import fold_regions
-
-    body = generate_quadruped("dog", 3000).body()
-    assert "tail" in body.region_names
-    folded = fold_regions(body)
-    assert "tail" not in folded.region_names
-    assert region_mass(body, "abdomen") == pytest.approx(region_mass(folded, "abdomen"), rel=1e-12)
-    own = region_mass(body, "abdomen", appendages=False)
-    assert own < 0.995 * region_mass(body, "abdomen")
-    assert own + region_mass(body, "tail") == pytest.approx(region_mass(body, "abdomen"), rel=0.01)
-
-
 # ---------------------------------------------------------------------------------------------
 # Loops and skeletons
 

@@ -1,7 +1,5 @@
 """Masses (METHOD §3) as volumes: the body's enclosed volume and each region's with its open
-boundaries capped (density cancels in every ratio). A region's mass counts what grows from it
-(ears and horns on the head, a tail on the abdomen: :func:`allorules.segment.regions.appendages_of`),
-as the paper's regions do, whether or not the labeller cut those apart.
+boundaries capped (density cancels in every ratio).
 """
 from __future__ import annotations
 
@@ -13,7 +11,6 @@ from allorules.measure.cache import measured
 from allorules.measure.parts import _region_faces
 from allorules.mesh.geometry import enclosed_volume
 from allorules.mesh.topology import cap_holes, hole_caps
-from allorules.segment.regions import appendages_of
 
 
 def capped(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,27 +41,15 @@ def body_mass(body: Body) -> float:
     return cache.body_mass
 
 
-def region_mass(body: Body, region: str, *, appendages: bool = True) -> float:
-    """Mass of a region (as a volume): its faces and, unless ``appendages`` is False, those of the
-    regions that grow from it (:func:`appendages_of`), with every open boundary loop capped.
-
-    Ears and horns are cut from a head at one tessellation of an animal and left in it at another
-    (the cow 381: its head's own mass moved by 20 % across four tessellations of one surface, with
-    its ears and horns 2.4 %); the head's mass is the paper's head, ears and horns included.
-    ``appendages=False``: the region's own faces only (shares of the body that add up to it)."""
-    names = (region,) + (appendages_of(region, body.region_names) if appendages else ())
-    key = "+".join(names) if appendages else f"{region} alone"
+def region_mass(body: Body, region: str) -> float:
+    """Mass of a region (as a volume): its faces with every open boundary loop capped."""
     cache = measured(body).region_mass
-    if key not in cache:
-        selection = _region_faces(body, region)
-        if len(names) > 1:   # the faces of the regions as one (as Body.region_face_mask takes one region's)
-            inside = np.logical_or.reduce([body.region_mask(name) for name in names])
-            selection = inside[body.faces].sum(axis=1) >= 2
-        volume = _capped_volume(body, f"region:{key}", body.faces[selection])
+    if region not in cache:
+        volume = _capped_volume(body, f"region:{region}", body.faces[_region_faces(body, region)])
         if not np.isfinite(volume) or volume <= 0:
             raise MeasurementError(
                 f"volume of region {region!r} cannot be determined even after capping (got "
                 f"{volume:.6g}); check its labels cover a piece of surface, not scattered faces"
             )
-        cache[key] = volume
-    return cache[key]
+        cache[region] = volume
+    return cache[region]

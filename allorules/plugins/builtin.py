@@ -25,8 +25,7 @@ def _mass(body: Body, region: str | None) -> float:
     from allorules.measure.mass import body_mass, region_mass
 
     # Body mass M: enclosed volume of the capped body; region mass: volume of the region's
-    # faces and its appendages' (ears and horns on the head) with every open boundary capped
-    # (density cancels in every ratio).
+    # faces with every open boundary capped (density cancels in every ratio).
     return body_mass(body) if region is None else region_mass(body, region)
 
 
@@ -58,7 +57,7 @@ def _stress(body: Body, region: str | None) -> float:
 
 MEASURES = [
     MeasureSpec("mass", "mass", 1.0, _mass,
-                "volume enclosed by a region and what grows from it (ears and horns on the head, a tail on the abdomen) with its open boundaries capped; the whole body when no region is named",
+                "volume enclosed by a region with its open boundaries capped; the whole body when no region is named",
                 needs_region=False),
     MeasureSpec("length", "length", 1 / 3, _length,
                 "length of a region: diameter of its skeleton, mean over the parts of a paired region"),

@@ -410,7 +410,7 @@ def mass_left(ruleset, body: Body, ratio: float) -> str:
     """
     try:
         total = body_mass(body)
-        shares = {name: region_mass(body, name, appendages=False) / total for name in body.region_names if body.has_region(name)}
+        shares = {name: region_mass(body, name) / total for name in body.region_names if body.has_region(name)}
     except AllorulesError:
         return ""
     fixed = {rule.region: rule.exponent for rule in ruleset.rules if rule.measure == "mass" and rule.region in shares}

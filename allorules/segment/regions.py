@@ -5,9 +5,7 @@ The six regions of a quadruped that the paper's rules talk about are :data:`QUAD
 find more (tail, ears, horns, trunk, ...). A run keeps every region its ruleset names; any other
 region joins the neighbour it grows from (:data:`NEIGHBOUR_REGION`, :func:`fold_regions`): a
 **tail** the **abdomen** (it grows from the rump, which is lower torso); ears, horns, antlers and
-a trunk the **head**; a mane the **neck**. A region's mass counts the regions that grow from it
-(:func:`appendages_of`), kept apart or not, so that it does not depend on where or whether the
-labeller cut them off.
+a trunk the **head**; a mane the **neck**.
 """
 from __future__ import annotations
 
@@ -20,12 +18,6 @@ QUADRUPED_REGIONS = ("head", "neck", "chest", "abdomen", "forelimbs", "hindlimbs
 # Where regions outside the ones a run keeps go: the neighbour that carries them.
 NEIGHBOUR_REGION = {"tail": "abdomen", "ears": "head", "ear": "head", "horns": "head", "horn": "head",
                     "trunk": "head", "antlers": "head", "mane": "neck"}
-
-
-def appendages_of(region: str, names: tuple[str, ...]) -> tuple[str, ...]:
-    """The regions among ``names`` that grow from ``region`` (:data:`NEIGHBOUR_REGION`): the head's
-    ears, horns, antlers and trunk, the abdomen's tail, the neck's mane."""
-    return tuple(name for name in names if NEIGHBOUR_REGION.get(name) == region)
 
 
 def fold_regions(body: Body, keep: tuple[str, ...] = QUADRUPED_REGIONS) -> Body:
