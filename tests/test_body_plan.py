@@ -79,6 +79,38 @@ def test_pose_angles_move_the_parts_the_way_their_sign_says():
     assert forward.truth.body_volume == pytest.approx(horse.truth.body_volume, rel=0.01)
 
 
+@pytest.mark.parametrize("preset", ["horse", "dog", "elephant"])
+def test_a_seated_animal_sits_on_one_ground_its_body_turned_up(posed, preset):
+    """Seated, the fore feet stand on the ground the folded hind legs rest on, the fore legs upright,
+    the body turned nose-up about its hips (the pitch solved for each animal's proportions), set
+    down on the standing animal's ground; the legs below their joints keep their shape."""
+    standing, seated = posed(preset, "stand"), posed(preset, "sit")
+    height = np.ptp(standing.vertices[:, 1])
+    y = seated.vertices[:, 1]
+    fore, hind = (seated.labels == REGION_NAMES.index(name) for name in ("forelimbs", "hindlimbs"))
+    assert abs(y[fore].min() - y[hind].min()) < 0.005 * height
+    assert y.min() == pytest.approx(standing.vertices[:, 1].min(), abs=1e-9)
+    chest, abdomen = (seated.vertices[seated.labels == REGION_NAMES.index(name)].mean(axis=0) for name in ("chest", "abdomen"))
+    rise = np.degrees(np.arctan2(chest[1] - abdomen[1], chest[0] - abdomen[0]))
+    assert rise > 10.0                                               # the chest above the belly: sitting up
+    leg = np.flatnonzero(fore & (standing.vertices[:, 2] > 0)
+                         & (standing.vertices[:, 1] < 0.5 * standing.truth.leg_cut_height["forelimbs"]))
+    top, bottom = leg[np.argmax(y[leg])], leg[np.argmin(y[leg])]
+    upright = seated.vertices[top] - seated.vertices[bottom]
+    assert abs(upright[0]) < 0.25 * np.linalg.norm(upright)            # a fore leg stands within ~15° of upright
+    pairs = np.random.default_rng(1).choice(leg, size=(200, 2))
+    np.testing.assert_allclose(np.linalg.norm(seated.vertices[pairs[:, 0]] - seated.vertices[pairs[:, 1]], axis=1),
+                               np.linalg.norm(standing.vertices[pairs[:, 0]] - standing.vertices[pairs[:, 1]], axis=1),
+                               atol=1e-9)
+
+
+def test_an_animal_whose_fore_legs_are_too_long_to_sit_is_refused():
+    from allorules.errors import AllorulesError
+
+    with pytest.raises(AllorulesError, match="cannot sit.*choose another pose"):
+        generate_quadruped("giraffe", 1500, pose="sit")
+
+
 def test_an_unknown_pose_is_a_clear_error():
     from allorules.mesh.quadruped import QuadrupedParameterError
 
@@ -104,10 +136,11 @@ def test_labels_agree_with_the_truth_in_six_poses_turned_at_random(posed, preset
 @pytest.mark.parametrize("preset, in_doubt, settle", [("horse", "feet", "--up DIR and --forward DIR"),
                                                        ("dog", "head from the tail", "--forward DIR")])
 def test_a_sitting_animal_refused_is_labelled_as_its_refusal_says(posed, preset, in_doubt, settle):
-    """Sitting, the horse's feet are in doubt (a hind foot paired with its tail's tip) and the dog's
-    ends; each refusal names the directions that settle it, and given them (as a user who knows
-    the file's axes gives them) the labels agree with the truth: horse 0.966, dog 0.982 (before the
-    feet were chosen with the body's directions, the horse was refused with them too)."""
+    """Sitting (its chest up on straight fore legs, its rump on the ground), the horse's feet are in
+    doubt and the dog's ends (its rump outweighs its head and neck beyond the girdles); each refusal
+    names the directions that settle it, and given them (as a user who knows the file's axes gives
+    them) the labels agree with the truth: horse 0.972, dog 0.972; 0.898 and 0.903 while the torso
+    was split across the level forward direction rather than along its girdles' chord."""
     animal = posed(preset, "sit")
     matrix = random_rotation(2)
     body = Body(animal.vertices @ matrix.T, animal.faces)
@@ -129,7 +162,8 @@ def test_the_giraffe_in_poses(posed, pose):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("preset,pose", [(p, q) for p in ("horse", "dog", "giraffe", "elephant")
-                                         for q in ("sit", "graze", "gallop", "walk", "lie")])
+                                         for q in ("sit", "graze", "gallop", "walk", "lie")
+                                         if (p, q) != ("giraffe", "sit")])
 def test_every_pose_is_labelled_right_or_refused_never_swapped(posed, preset, pose):
     """Where the poses are hard (sitting, grazing, the elephant's short thick legs), the labels
     may be rough or refused, but the head is never taken for the tail nor a fore leg for a hind one."""

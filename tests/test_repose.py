@@ -69,7 +69,7 @@ def test_a_body_without_labels_or_frame_is_refused(horse):
 
 POSED = [("horse.obj", "gallop"), ("horse.obj", "lie"), ("lion.obj", "walk"), ("wolf.obj", "walk"),
          ("wolf.obj", "gallop"), ("387.off", "rear"), ("390.off", "gallop"), ("381.off", "graze"),
-         ("wolf.obj", "graze"), ("lion.obj", "lie")]
+         ("wolf.obj", "graze"), ("lion.obj", "lie"), ("wolf.obj", "sit"), ("lion.obj", "sit")]
 
 
 def _posed_real(name: str, pose: str):

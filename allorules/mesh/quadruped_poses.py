@@ -13,7 +13,11 @@ surface stays smooth and closed:
 - the **neck** turns about its base (the chest's tangent plane), the **head** about its joint with
   the neck; the blend is ± the neck's radius there;
 - the **tail** turns about its root (its cut plane) and curls: bent like a rod into an arc of the
-  given total angle over its length.
+  given total angle over its length;
+- the **whole body** pitches nose-up about its hips (``pitch``), the legs' swings then counted from
+  the vertical so that a leg with no swing still stands upright. A **seated** pose solves the pitch:
+  the body turns up until the fore feet stand on the ground the folded hind legs rest on, and is
+  set down on the standing animal's ground (:func:`seat`, shared with :mod:`allorules.mesh.repose`).
 
 Angles are in degrees; positive swings move a foot forward (+X), positive knee bends fold the
 lower leg backward, positive neck/head/tail angles turn up. :data:`POSES` names the ones the tests
@@ -22,13 +26,16 @@ use; ``generate_quadruped(..., pose="gallop")`` or ``pose=Pose(...)``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from allorules.errors import AllorulesError
 from allorules.mesh.geometry import near_line, smoothstep, turn_about_line
 
 LEGS = ("fore-left", "fore-right", "hind-left", "hind-right")
+SEAT_PITCH_LIMIT = 60.0   # degrees: a body turned up further does not sit (its fore legs are too long)
 
 
 @dataclass(frozen=True)
@@ -41,10 +48,12 @@ class Pose:
     head: float = 0.0
     tail: float = 0.0
     tail_curl: float = 0.0
+    pitch: float = 0.0          # the whole body turned nose-up about its hips
+    seated: bool = False        # the pitch solved: the fore feet down on the hind legs' ground
 
     def is_rest(self) -> bool:
         return not any(self.swing.values()) and not any(self.knee.values()) and not any(
-            (self.neck, self.head, self.tail, self.tail_curl))
+            (self.neck, self.head, self.tail, self.tail_curl, self.pitch, self.seated))
 
 
 def _legs(fore_left=0.0, fore_right=0.0, hind_left=0.0, hind_right=0.0) -> dict[str, float]:
@@ -57,7 +66,8 @@ POSES: dict[str, Pose] = {
     "gallop": Pose(swing=_legs(38, 30, -36, -28), knee=_legs(20, 10, 0, 0), neck=-20, head=15, tail=30),
     "rear": Pose(swing=_legs(20, 24, 35, 35), knee=_legs(95, 85, 0, 0), neck=20, tail=-20),
     "graze": Pose(swing=_legs(6, -6, 0, 0), neck=-70, head=20, tail=-10),
-    "sit": Pose(swing=_legs(0, 0, 70, 70), knee=_legs(0, 0, 120, 120), neck=10, tail=-15),
+    # the thighs forward, the shins folded back under them, the chest up on straight fore legs
+    "sit": Pose(swing=_legs(0, 0, 85, 85), knee=_legs(0, 0, 160, 160), neck=-10, head=-15, tail=35, seated=True),
     "lie": Pose(swing=_legs(25, 30, 55, 50), knee=_legs(95, 100, 100, 95), neck=5, head=-10, tail=-20),
     "curl": Pose(swing=_legs(8, -8, -8, 8), tail=70, tail_curl=240, neck=10),
 }
@@ -77,8 +87,49 @@ def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, 
     """
     if pose.is_rest():
         return vertices.copy()
-    p = layout.parameters
     named = {name: labels == index for index, name in enumerate(region_names)}
+    hind_x = float(np.mean([axis[0] for axis in layout.leg_axes["hindlimbs"]]))
+    hips = np.array([hind_x, layout.leg_cut_height["hindlimbs"], 0.0])
+    return pitched(lambda pitch: _turned_at_joints(layout, vertices, pose, named, pitch), pose, hips,
+                   side=np.array([0.0, 0.0, 1.0]), up=np.array([0.0, 1.0, 0.0]),
+                   fore=named["forelimbs"], hind=named["hindlimbs"], rest=vertices)
+
+
+def pitched(joints: Callable[[float], np.ndarray], pose: Pose, hips: np.ndarray, *, side: np.ndarray,
+            up: np.ndarray, fore: np.ndarray, hind: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """The body posed at its joints (``joints(pitch)``: each leg's swing less the pitch, so that it
+    is counted from the vertical) and turned nose-up by the pitch about the line through ``hips``
+    along ``side`` (forward × up: a turn by +angle raises the head).
+
+    A seated pose's pitch is solved: the one at which the fore feet (the lowest of ``fore`` along
+    ``up``) come down to the level of the folded hind legs (the lowest of ``hind``; bisection, as
+    the fore feet rise with the pitch and the hind legs turn about the hips with it), at most
+    :data:`SEAT_PITCH_LIMIT` (beyond it the animal cannot sit: an error); the body is then set down on the standing animal's ground (the
+    lowest point of ``rest``)."""
+    def at(degrees: float) -> np.ndarray:
+        moved = joints(degrees)
+        return turn_about_line(moved, hips, side, np.full(len(moved), math.radians(degrees)))
+
+    if not pose.seated:
+        return at(pose.pitch)
+
+    def gap(moved: np.ndarray) -> float:
+        return float((moved[fore] @ up).min() - (moved[hind] @ up).min())
+
+    low, high = 0.0, SEAT_PITCH_LIMIT
+    if gap(at(high)) < 0.0:
+        raise AllorulesError(f"this animal cannot sit: its fore feet stay below its folded hind legs with its body "
+                             f"turned up {SEAT_PITCH_LIMIT:.0f}° (fore legs too long for its body); choose another pose")
+    while high - low > 0.05:
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if gap(at(middle)) < 0.0 else (low, middle)
+    seated = at(high)
+    return seated + ((rest @ up).min() - (seated @ up).min()) * up
+
+
+def _turned_at_joints(layout, vertices: np.ndarray, pose: Pose, named: dict[str, np.ndarray], pitch: float) -> np.ndarray:
+    """The legs, neck, head and tail turned at their joints; each leg's swing less ``pitch``."""
+    p = layout.parameters
     rest = vertices
     moved = vertices.copy()
     # Legs: knee first (in the leg's standing frame), then the swing about the saddle.
@@ -88,7 +139,8 @@ def pose_vertices(layout, vertices: np.ndarray, pose: Pose, labels: np.ndarray, 
         reach = layout.leg_reach[region]
         for (x, z), side in zip(layout.leg_axes[region], ("left", "right")):
             leg = f"{region[:4]}-{side}"
-            swing, knee = math.radians(pose.swing.get(leg, 0.0)), math.radians(pose.knee.get(leg, 0.0))
+            swing = math.radians(pose.swing.get(leg, 0.0) - pitch)
+            knee = math.radians(pose.knee.get(leg, 0.0))
             if swing == 0.0 and knee == 0.0:
                 continue
             near = np.hypot(rest[:, 0] - x, rest[:, 2] - z)

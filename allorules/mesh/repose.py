@@ -26,7 +26,7 @@ import numpy as np
 from allorules.body import Body
 from allorules.errors import AllorulesError
 from allorules.mesh.geometry import near_line, smoothstep, turn_about_line
-from allorules.mesh.quadruped_poses import Pose
+from allorules.mesh.quadruped_poses import Pose, pitched
 from allorules.mesh.topology import vertex_components, vertex_graph
 
 # The regions whose surface around a part's joint turns with the part (blended).
@@ -97,11 +97,24 @@ def repose(body: Body, pose: Pose) -> np.ndarray:
     side = np.cross(forward, up)
     side /= np.linalg.norm(side)
     graph = vertex_graph(vertices, body.faces)
+    legs = _legs(body, graph, side)
+    joints = {name: _Joint(vertices, graph, part) for name, (_, part) in legs.items()}
+    hips = np.mean([joints[name].pivot for name in ("hind-left", "hind-right")], axis=0)
+    return pitched(lambda pitch: _turned_at_joints(body, pose, graph, legs, joints, pitch, side, forward), pose, hips,
+                   side=side, up=up, fore=_mask(body, ("forelimbs",)), hind=_mask(body, ("hindlimbs",)),
+                   rest=vertices)
+
+
+def _turned_at_joints(body: Body, pose: Pose, graph, legs, joints, pitch: float, side: np.ndarray,
+            forward: np.ndarray) -> np.ndarray:
+    """The legs, head, neck and tail turned at their joints; each leg's swing less ``pitch``."""
+    vertices = body.vertices
     moved = vertices.copy()
     # Legs: the knee first (in the standing leg's frame), then the swing about the leg's joint.
-    for name, (region, part) in _legs(body, graph, side).items():
-        swing, knee = math.radians(pose.swing.get(name, 0.0)), math.radians(pose.knee.get(name, 0.0))
-        joint = _Joint(vertices, graph, part)
+    for name, (region, part) in legs.items():
+        swing = math.radians(pose.swing.get(name, 0.0) - pitch)
+        knee = math.radians(pose.knee.get(name, 0.0))
+        joint = joints[name]
         if knee:
             along = (vertices - joint.pivot) @ joint.direction
             middle = part & (np.abs(along - 0.5 * joint.length) < 0.5 * joint.radius)
