@@ -104,10 +104,12 @@ def pitched(joints: Callable[[float], np.ndarray], pose: Pose, hips: np.ndarray,
     A seated pose's pitch is solved: the one at which the fore feet (the lowest of ``fore`` along
     ``up``) come down to the level of the folded hind legs (the lowest of ``hind``; bisection, as
     the fore feet rise with the pitch and the hind legs turn about the hips with it), at most
-    :data:`SEAT_PITCH_LIMIT` (beyond it the animal cannot sit: an error); the body is then set down on the standing animal's ground (the
-    lowest point of ``rest``)."""
+    :data:`SEAT_PITCH_LIMIT` (beyond it the animal cannot sit: an error); the body is then set down
+    on the standing animal's ground (the lowest point of ``rest``)."""
     def at(degrees: float) -> np.ndarray:
         moved = joints(degrees)
+        if degrees == 0.0:
+            return moved
         return turn_about_line(moved, hips, side, np.full(len(moved), math.radians(degrees)))
 
     if not pose.seated:

@@ -14,8 +14,11 @@ the tail's at its root); its pivot is the ring's centroid, its radius the ring's
 direction from the pivot to the part's centroid. A part turns about the line through its pivot
 along the animal's side axis, blended from 0 to 1 over ± one radius of the joint, and the surface
 of its parent region around the joint (a leg's torso, the neck's chest) is blended with it. A
-**knee** lies half way down a leg's length. A rough rig, not an animator's: the surface stays
-closed and smooth, but a deep bend squeezes the skin at the joint.
+**knee** lies half way down a leg's length. The whole body pitches about its hips (the centre of
+the hind legs' joints) as the generated animal's does (:func:`~allorules.mesh.quadruped_poses.pitched`:
+a seated pose turns it up until its fore feet reach its folded hind legs' ground). A rough rig,
+not an animator's: the surface stays closed and smooth, but a deep bend squeezes the skin at the
+joint.
 """
 from __future__ import annotations
 

@@ -78,6 +78,9 @@ MIRROR_ACROSS = 0.9            # at least this share of the other's, and they li
 MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
 MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of its reach (in space) is its end's, no feature
 
+SEATED_TILT = 25.0             # degrees: girdles further from level sit (the shared animals standing: 0.3-20.7;
+                               # the generated horse and dog seated, 32-34)
+
 # Head or tail.
 HEAD_TAIL_MARGIN = 0.6         # summed evidence needed
 STRONG_CUE = 0.5               # a cue this strong against the sum refuses
@@ -456,7 +459,9 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     # each leg joins the body; steadier than two points on the underside when the legs are spread).
     centres = [np.mean([leg_tops[foot] for foot in pair], axis=0) for pair in (first_pair, second_pair)]
     chord = centres[0] - centres[1]
-    if ground is not None:   # standing: the spine runs level (legs cut at different heights do not tilt it)
+    if ground is not None and is_level(chord, ground):
+        # standing: the spine runs level (legs cut at different heights do not tilt it); a sitting
+        # animal's girdles are far from level, its spine runs from one to the other
         chord = chord - (chord @ ground) * ground
     axis = chord / max(np.linalg.norm(chord), 1e-300)
     body = legs < 0
@@ -500,6 +505,12 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
         lateral = across / max(np.linalg.norm(across), 1e-300)
         ends.append(_read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet, lateral))
     return ends[0], ends[1]
+
+
+def is_level(chord: np.ndarray, up: np.ndarray) -> bool:
+    """Whether the chord between the girdles lies within SEATED_TILT of level (standing, not sitting)."""
+    length = float(np.linalg.norm(chord))
+    return length > 0 and abs(float(chord @ up)) < np.sin(np.radians(SEATED_TILT)) * length
 
 
 def _torso_loop(vertices, faces, adjacency, point, normal):

@@ -196,9 +196,8 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     # The torso runs along the ground's forward direction for an animal standing on its feet (as the
     # generator's planes do), else along the chord between the girdles (rearing, lying, and sitting:
     # its feet on one ground, but its girdles far from level).
-    length = np.linalg.norm(chord)
-    standing = (choice.ground is not None or up_given) and abs(chord @ up) < np.sin(np.radians(SEATED_TILT)) * length
-    torso_axis = forward_axis if standing or not length > 0 else chord / length
+    standing = (choice.ground is not None or up_given) and body_plan.is_level(chord, up)
+    torso_axis = forward_axis if standing or not np.linalg.norm(chord) > 0 else chord / np.linalg.norm(chord)
     head_tip = ends.head.main_tip
     if head_tip is None:   # a head that does not stick out: its farthest point from the tail's girdle
         from_tail = dijkstra(graph, indices=ends.tail.girdle)
@@ -214,8 +213,6 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     return labels, Frame(up=up, forward=forward_axis), plan
 
 
-SEATED_TILT = 25.0      # degrees: girdles further from level sit (the shared animals standing: 0.3-20.7;
-                        # the generated horse and dog seated, 32-34)
 LEG_RINGS = 90          # geodesic rings followed up each leg
 
 
