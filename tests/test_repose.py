@@ -60,6 +60,25 @@ def test_neck_and_tail_turn_up_with_positive_angles(horse):
     assert np.array_equal(repose(horse, Pose()), horse.vertices)
 
 
+def test_a_pitch_turns_the_body_up_about_its_hips_and_the_legs_stay_upright(horse):
+    """``pitch`` turns the whole body nose-up about its hips; the legs' swings are counted from the
+    vertical, so a leg with no swing stands as it stood (the lower half of each leg the same
+    direction as standing, where the body's own axis turned by the pitch)."""
+    moved = repose(horse, Pose(pitch=20.0))
+    head, hind = horse.region_mask("head"), horse.region_mask("hindlimbs")
+    assert moved[head, 1].mean() > horse.vertices[head, 1].mean() + 0.1 * np.ptp(horse.vertices[:, 1])
+    chest, abdomen = (moved[horse.region_mask(name)].mean(axis=0) for name in ("chest", "abdomen"))
+    assert np.degrees(np.arctan2(chest[1] - abdomen[1], chest[0] - abdomen[0])) == pytest.approx(20.0, abs=4.0)
+    for region in ("forelimbs", "hindlimbs"):
+        leg = _leg(horse, region, 1.0)
+        low = leg & (horse.vertices[:, 1] < np.median(horse.vertices[leg, 1]))
+        top, bottom = np.flatnonzero(low)[[np.argmax(horse.vertices[low, 1]), np.argmin(horse.vertices[low, 1])]]
+        line, standing = moved[top] - moved[bottom], horse.vertices[top] - horse.vertices[bottom]
+        cosine = line @ standing / (np.linalg.norm(line) * np.linalg.norm(standing))
+        assert np.degrees(np.arccos(min(cosine, 1.0))) < 1.0, region
+    assert np.linalg.norm(moved[hind].mean(axis=0) - horse.vertices[hind].mean(axis=0)) < 0.05 * np.ptp(horse.vertices[:, 0])
+
+
 def test_a_body_without_labels_or_frame_is_refused(horse):
     with pytest.raises(Exception, match="labelled body"):
         repose(Body(horse.vertices, horse.faces), POSES["gallop"])
