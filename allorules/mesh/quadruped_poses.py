@@ -17,7 +17,7 @@ surface stays smooth and closed:
 - the **whole body** pitches nose-up about its hips (``pitch``), the legs' swings then counted from
   the vertical so that a leg with no swing still stands upright. A **seated** pose solves the pitch:
   the body turns up until the fore feet stand on the ground the folded hind legs rest on, and is
-  set down on the standing animal's ground (:func:`seat`, shared with :mod:`allorules.mesh.repose`).
+  set down on the standing animal's ground (:func:`pitched`, shared with :mod:`allorules.mesh.repose`).
 
 Angles are in degrees; positive swings move a foot forward (+X), positive knee bends fold the
 lower leg backward, positive neck/head/tail angles turn up. :data:`POSES` names the ones the tests

@@ -109,7 +109,7 @@ def repose(body: Body, pose: Pose) -> np.ndarray:
 
 
 def _turned_at_joints(body: Body, pose: Pose, graph, legs, joints, pitch: float, side: np.ndarray,
-            forward: np.ndarray) -> np.ndarray:
+                      forward: np.ndarray) -> np.ndarray:
     """The legs, head, neck and tail turned at their joints; each leg's swing less ``pitch``."""
     vertices = body.vertices
     moved = vertices.copy()

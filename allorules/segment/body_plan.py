@@ -452,7 +452,8 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     breast at one end, rump and tail at the other. Cut along the longest loop of each plane, a
     piece that lies mostly beyond one plane is that end's even where it reaches across the other
     plane (a tail curled forward over the back stays with the rump). ``ground``: the normal of the
-    plane the animal stands on, if it does; the spine is then taken level.
+    plane the animal stands on, if it does; the spine is then taken level, unless the girdles lie
+    more than SEATED_TILT from level (the animal sits: :func:`is_level`).
     """
     girdles = (_girdle(top, first_pair, second_pair), _girdle(top, second_pair, first_pair))
     # The spine's direction: between the centres of the two pairs' leg tops (``leg_tops``: where
