@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from allorules.measure.length import region_length
-from allorules.measure.limbs import limb_sections, posture_change
+from allorules.measure.limbs import (
+    FOLDED_REACH,
+    limb_reach,
+    limb_sections,
+    posture_change,
+)
 from allorules.measure.parts import carry_fields
 from allorules.mesh.quadruped import generate_quadruped
 from allorules.solve.posture import FootContact, restore_limb_axes, restore_limb_lines
@@ -73,6 +78,77 @@ def test_restore_limb_lines_straightens_a_bowed_leg_and_keeps_a_bent_one(animal)
 
     sheared = np.abs(girths(bowed) / girths(body.vertices) - 1).max()
     assert np.abs(girths(restored) / girths(body.vertices) - 1).max() < 0.25 * sheared
+
+
+@pytest.fixture(scope="module")
+def sitting():
+    return generate_quadruped("dog", vertices=1500, pose="sit")
+
+
+def test_limb_reach_tells_a_folded_leg_from_a_straight_one(animal, sitting):
+    standing = animal.body()
+    assert min(limb_reach(limb) for region in ("forelimbs", "hindlimbs")
+               for limb in limb_sections(standing, region)) > 0.95
+    seated = sitting.body()
+    assert max(limb_reach(limb) for limb in limb_sections(seated, "hindlimbs")) < FOLDED_REACH[0]     # 0.17-0.19
+    assert min(limb_reach(limb) for limb in limb_sections(seated, "forelimbs")) > FOLDED_REACH[1]
+
+
+def _opened(body, leg, amount):
+    """``body`` with ``leg``'s far half lifted by ``amount`` of its length (a folded leg's fold opened)."""
+    share = np.clip((leg.field - leg.field.min()) / np.ptp(leg.field), 0.0, 1.0)
+    moved = body.vertices.copy()
+    moved[leg.mesh.vertex_index, 1] += amount * leg.length * np.clip(2.0 * share - 1.0, 0.0, 1.0)
+    return moved
+
+
+def test_a_folded_leg_keeps_what_eq9_made_of_it_and_a_straight_one_is_turned_back(sitting):
+    """A sitting animal's hind legs fold under it: the chord from hip to paw is a fifth of the leg,
+    so a small change of the fold turns it by degrees. The posture took that for a lean and turned
+    the folded legs about the hip each step (a sitting dog at ×0.5 pressed them into the ground:
+    its hind leg length exponent −0.75 for 0.336); it leaves them as they are."""
+    from scipy.spatial.transform import Rotation
+
+    body = sitting.body()
+    hind = limb_sections(body, "hindlimbs")[0]
+    opened = _opened(body, hind, 0.05)
+    # the paw rose by 5 % of the leg: the short chord from hip to paw turned by degrees
+    tip = hind.mesh.vertex_index[np.argmax(hind.field)]
+    chord_before, chord_after = body.vertices[tip] - hind.junction, opened[tip] - hind.junction
+    cosine = chord_before @ chord_after / (np.linalg.norm(chord_before) * np.linalg.norm(chord_after))
+    assert np.degrees(np.arccos(cosine)) > 3.0
+    np.testing.assert_array_equal(restore_limb_axes(body, body.with_vertices(opened)), opened)
+    np.testing.assert_array_equal(restore_limb_lines(body, body.with_vertices(opened)), opened)
+    # the same animal's straight fore leg, leaning 6° about its shoulder, is turned back
+    fore = limb_sections(body, "forelimbs")[0]
+    leaning = body.vertices.copy()
+    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
+    index = fore.mesh.vertex_index
+    leaning[index] = (leaning[index] - fore.junction) @ turn.T + fore.junction
+    restored = restore_limb_axes(body, body.with_vertices(leaning))
+    assert posture_change(body, body.with_vertices(restored))["forelimbs[0]"]["tilt_degrees"] < 0.01
+
+
+def test_a_half_folded_leg_is_turned_back_part_of_the_way():
+    """Between folded and straight (FOLDED_REACH) the turn fades: a lying horse's fore leg (reach
+    0.6-0.7) leaning 6° is turned back by its kept share, smoothly, not all or nothing."""
+    from scipy.spatial.transform import Rotation
+
+    from allorules.mesh.geometry import smoothstep
+
+    body = generate_quadruped("horse", vertices=1500, pose="lie").body()
+    fore = limb_sections(body, "forelimbs")[0]
+    reach = limb_reach(fore)
+    assert FOLDED_REACH[0] < reach < FOLDED_REACH[1]
+    kept = float(smoothstep(np.array((reach - FOLDED_REACH[0]) / (FOLDED_REACH[1] - FOLDED_REACH[0]))))
+    leaning = body.vertices.copy()
+    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
+    index = fore.mesh.vertex_index
+    leaning[index] = (leaning[index] - fore.junction) @ turn.T + fore.junction
+    before = posture_change(body, body.with_vertices(leaning))["forelimbs[0]"]["tilt_degrees"]
+    restored = restore_limb_axes(body, body.with_vertices(leaning))
+    after = posture_change(body, body.with_vertices(restored))["forelimbs[0]"]["tilt_degrees"]
+    assert after == pytest.approx((1.0 - kept) * before, abs=0.05)
 
 
 def test_foot_contact_leaves_a_standing_body_alone(animal):

@@ -41,13 +41,20 @@ from allorules.measure.sections import (
     isocontour_loops,
     isocontour_stack,
 )
-from allorules.mesh.geometry import affine_misfit, vertex_areas
+from allorules.mesh.geometry import affine_misfit, similarity_fit, vertex_areas
 
 # Share of a limb's area at its far end (the foot: a hoof, a wide sole) that a limb's skeleton
 # does not cut into sections: the field along the leg flattens across a sole, where its
 # isocontours wander and split. The skeleton's tip reaches the foot's far end from the last
 # section before it (sections.end_point).
 FOOT_SHARE = 0.1
+
+# A limb's reach (:func:`limb_reach`) below FOLDED_REACH[0] is folded (a hind leg under a sitting
+# animal: 0.17-0.53 on the generated and shared animals), above FOLDED_REACH[1] straight (standing:
+# 0.83-1.0); lying and rearing legs lie between (0.63-0.85). A folded leg's junction -> foot chord
+# says nothing of its direction: the posture does not turn it (allorules.solve.posture) and its
+# tilt is its centre line's turn (:func:`posture_change`).
+FOLDED_REACH = (0.5, 0.8)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -225,6 +232,18 @@ def stance_down(limbs: list[Limb], frame=None) -> np.ndarray:
     return down / np.linalg.norm(down)
 
 
+def limb_reach(limb: Limb) -> float:
+    """How far a limb reaches for its length: the straight distance from its junction to its last
+    section's centroid over the centre line's length between them (1 for a straight leg; measured
+    on the shared animals standing 0.83-1.0, lying or rearing 0.63-0.85, a hind leg folded under a
+    sitting animal 0.17-0.53). 1 for a limb with no section."""
+    if not limb.sections:
+        return 1.0
+    line = np.vstack([limb.junction, limb.centroids])
+    length = float(np.linalg.norm(np.diff(line, axis=0), axis=1).sum())
+    return float(np.linalg.norm(line[-1] - line[0]) / length) if length > 0 else 1.0
+
+
 def limb_bend(limb: Limb) -> float:
     """How far a limb's centre line strays from straight: the largest distance of a section
     centroid from the line junction → last section's centroid, as a share of that line's length
@@ -240,6 +259,14 @@ def limb_bend(limb: Limb) -> float:
     offsets = centroids - limb.junction
     across = offsets - np.outer(offsets @ chord / reach ** 2, chord)
     return float(np.linalg.norm(across, axis=1).max() / reach)
+
+
+def _line_turn(before: Limb, after: Limb) -> float:
+    """The angle in degrees by which a limb's centre line (junction and section centroids) turned:
+    the rotation of the best similarity between the two lines."""
+    _, rotation, _ = similarity_fit(np.vstack([before.junction, before.centroids]),
+                                    np.vstack([after.junction, after.centroids]))
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def girth_spread(before: Limb, after: Limb) -> float:
@@ -306,8 +333,11 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     change = {}
     for index, limb in enumerate(limbs_before):
         cosine = axes_before[index] @ axes_after[index] / (np.linalg.norm(axes_before[index]) * np.linalg.norm(axes_after[index]))
+        tilt = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+        if limb_reach(limb) < FOLDED_REACH[0] and len(limb.sections) >= 2:
+            tilt = _line_turn(limb, limbs_after[index])
         change[f"{limb.region}[{limb.part}]"] = {
-            "tilt_degrees": float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
+            "tilt_degrees": tilt,
             "foot_lift": float(lift_after[index] - lift_before[index]),
             "bend": limb_bend(limbs_after[index]) - limb_bend(limb),
             "girth_spread": girth_spread(limb, limbs_after[index]),

@@ -22,7 +22,8 @@ rules measure:
   the last, so that the next step's carried-forward misses make up what it changed.
 
 ``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
-paper's behaviour).
+paper's behaviour). The turn and the line fade out on a folded leg (:func:`_kept_share`): it is
+left as Eq. 9 makes it.
 
 The turn moves each leg as a rigid whole below a short blend at its top, and the foot contact
 moves each pair rigidly, so a pair's length, girths and load-bearing section are what the step
@@ -37,6 +38,7 @@ import numpy as np
 import scipy.sparse as sparse
 import scipy.sparse.csgraph as csgraph
 from scipy.sparse.linalg import splu
+from scipy.spatial.transform import Rotation
 
 from allorules.body import Body
 from allorules.mesh.geometry import smoothstep
@@ -217,6 +219,21 @@ def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
     return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
 
 
+def _kept_share(limb) -> float:
+    """How much of a limb's direction and centre line the posture keeps: 1 for a straight leg, 0
+    for a folded one, smooth between (:data:`allorules.measure.limbs.FOLDED_REACH`).
+
+    A folded leg (sitting, lying) has no direction to keep: its chord, junction → foot, is short
+    beside its length, so Eq. 9's smallest change of the fold turns it by degrees, and the turn
+    and the line, which both follow the chord, turned the whole folded leg about the hip each
+    step: the generated dog sitting at ×0.5 pressed its hind legs into the ground (hind leg
+    length exponent −0.75 for 0.336; left to Eq. 9, every rule met)."""
+    from allorules.measure.limbs import FOLDED_REACH, limb_reach
+
+    low, high = FOLDED_REACH
+    return float(smoothstep(np.array((limb_reach(limb) - low) / (high - low))))
+
+
 def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
 
@@ -232,11 +249,14 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     for before, after in _limb_pairs(reference, moved):
         index = after.mesh.vertex_index
         moves.append((index, np.zeros((len(index), 3))))
-        if not before.sections:
+        kept = _kept_share(before)
+        if not before.sections or kept == 0.0:
             continue
         rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
         if rotation is None:
             continue
+        if kept < 1.0:      # a leg partly folded is turned back that share of the way
+            rotation = Rotation.from_rotvec(kept * Rotation.from_matrix(rotation).as_rotvec()).as_matrix()
         fractions = np.array([section.fraction for section in before.sections])
         lowest = before.clear_level            # the junction's rim does not turn (it would tear)
         blend_level = float(np.interp(max(POSTURE_BLEND, before.clear_fraction + POSTURE_BLEND / 2), fractions,
@@ -283,7 +303,8 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
     moves = []
     for before, after in _limb_pairs(reference, moved):
         moves.append((after.mesh.vertex_index, np.zeros((len(after.mesh.vertex_index), 3))))
-        if len(before.sections) < 2:
+        kept = _kept_share(before)
+        if len(before.sections) < 2 or kept == 0.0:
             continue
         # the centroids from the second section on, relative to the first: the last is the chord
         centroids_start, centroids_now = before.centroids, after.centroids
@@ -300,6 +321,7 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         shift = target - line_now
         direction = chord_now / reach_now
         shift -= np.outer(shift @ direction, direction)                 # across the leg only
+        shift *= kept
         shifts = np.vstack([np.zeros(3), shift])                        # d_0 = 0 (and d_last = 0)
         # interpolated along the field; 0 above the first and below the last section
         moves[-1] = (moves[-1][0], np.column_stack([np.interp(after.field, before.levels, shifts[:, axis], left=0.0,
