@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from allorules.body import Body
-from allorules.errors import ScalingError, SegmentationError
+from allorules.errors import MeasurementError, ScalingError, SegmentationError
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.registry import registry_for
 from allorules.rules.overrides import override_exponents
@@ -177,6 +177,29 @@ def test_a_step_whose_output_cannot_be_measured_stops_the_run_with_its_report(an
     assert isinstance(closest, BiologyScalingResult) and not closest.converged
     assert len(closest.steps) == 1 and closest.messages[0].startswith("step 2 of 2")
     assert closest.mass_ratio == pytest.approx(1.1, rel=0.01)   # judged on step 1's output
+
+
+def test_a_step_output_unmeasurable_only_at_the_next_step_stops_the_run_with_its_report(animal, registry, monkeypatch):
+    """A step's output is measured for its mass and stress when it is made, and for every term only
+    at the next step's start (the donkey 385 sitting at ×0.5 lost its chest's tape there): the run
+    ends naming that step, judged on its start, with its report; not a bare measuring error."""
+    from allorules.runs import ruleset_run
+
+    carried, calls = ruleset_run._carried_misses, []
+
+    def failing(terms, anchors, reached, current, measure):
+        calls.append(1)
+        if len(calls) == 2:                 # the second step's start: the first step's output
+            raise MeasurementError("no closed section around the chest behind the forelimbs")
+        return carried(terms, anchors, reached, current, measure)
+
+    monkeypatch.setattr(ruleset_run, "_carried_misses", failing)
+    with pytest.raises(ScalingError, match="step 1 of 2: its output could not be measured: no closed section") as caught:
+        _run(animal, registry, load_ruleset("quadruped", registry), 1.21)
+    closest = caught.value.closest
+    assert isinstance(closest, BiologyScalingResult) and not closest.converged
+    assert closest.messages[0].startswith("step 1 of 2")
+    assert closest.mass_ratio == pytest.approx(1.0, abs=1e-9)     # judged on the first step's start
 
 
 @pytest.mark.slow
