@@ -16,6 +16,7 @@ from allorules.measure.limbs import (
     posture_change,
 )
 from allorules.measure.parts import carry_fields
+from allorules.mesh.geometry import similarity_fit
 from allorules.mesh.quadruped import generate_quadruped
 from allorules.solve.posture import FootContact, restore_limb_axes, restore_limb_lines
 
@@ -102,53 +103,68 @@ def _opened(body, leg, amount):
     return moved
 
 
-def test_a_folded_leg_keeps_what_eq9_made_of_it_and_a_straight_one_is_turned_back(sitting):
-    """A sitting animal's hind legs fold under it: the chord from hip to paw is a fifth of the leg,
-    so a small change of the fold turns it by degrees. The posture took that for a lean and turned
-    the folded legs about the hip each step (a sitting dog at ×0.5 pressed them into the ground:
-    its hind leg length exponent −0.75 for 0.336); it leaves them as they are."""
+def _turned(body, limb, degrees):
+    """``body`` with ``limb`` turned rigidly about its junction by ``degrees`` about the z axis."""
     from scipy.spatial.transform import Rotation
 
+    moved = body.vertices.copy()
+    turn = Rotation.from_euler("z", degrees, degrees=True).as_matrix()
+    index = limb.mesh.vertex_index
+    moved[index] = (moved[index] - limb.junction) @ turn.T + limb.junction
+    return moved
+
+
+def test_a_folded_leg_is_turned_back_by_its_centre_line_not_its_chord(sitting):
+    """A sitting animal's hind legs fold under it: the chord from hip to paw is a fifth of the leg,
+    so a small change of the fold turns it by degrees. Turned back by that chord each step, the
+    folded legs of a sitting dog at ×0.5 were pressed into the ground (hind leg length exponent
+    −0.75 for 0.336); left alone, they swung (a donkey's by 42° over a run). A folded leg is turned
+    back by the best rotation of its whole centre line: a rigid swing is undone, a change of the
+    fold is not taken for one."""
     body = sitting.body()
     hind = limb_sections(body, "hindlimbs")[0]
-    opened = _opened(body, hind, 0.05)
-    # the paw rose by 5 % of the leg: the short chord from hip to paw turned by degrees
     tip = hind.mesh.vertex_index[np.argmax(hind.field)]
+    # swung rigidly 6° about the hip: turned back, the paw where it was (the top quarter, which
+    # the turn blends in from the hip's rim, keeps some of the swing)
+    swung = _turned(body, hind, 6.0)
+    assert posture_change(body, body.with_vertices(swung))["hindlimbs[0]"]["tilt_degrees"] == pytest.approx(6.0, abs=0.01)
+    restored = restore_limb_axes(body, body.with_vertices(swung))
+    assert np.linalg.norm(swung[tip] - body.vertices[tip]) > 0.01 * hind.length      # (near the hip: folded)
+    assert np.linalg.norm(restored[tip] - body.vertices[tip]) < 1e-9 * hind.length
+    assert posture_change(body, body.with_vertices(restored))["hindlimbs[0]"]["tilt_degrees"] < 1.0
+    # the fold opened, the paw 5 % of the leg up: its short chord turned by degrees ...
+    opened = _opened(body, hind, 0.05)
     chord_before, chord_after = body.vertices[tip] - hind.junction, opened[tip] - hind.junction
     cosine = chord_before @ chord_after / (np.linalg.norm(chord_before) * np.linalg.norm(chord_after))
-    assert np.degrees(np.arccos(cosine)) > 3.0
-    np.testing.assert_array_equal(restore_limb_axes(body, body.with_vertices(opened)), opened)
+    chord_turn = np.degrees(np.arccos(cosine))
+    assert chord_turn > 3.0
+    # ... but the leg as a whole turned less, and is turned back by that, not by the chord's turn
+    line_turn = posture_change(body, body.with_vertices(opened))["hindlimbs[0]"]["tilt_degrees"]
+    assert 0.1 * chord_turn < line_turn < 0.5 * chord_turn
+    restored = restore_limb_axes(body, body.with_vertices(opened))
+    far = hind.mesh.vertex_index[hind.field > np.median(hind.field)]       # below the turn's blend
+    _, rotation, _ = similarity_fit(opened[far], restored[far])
+    applied = np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+    assert applied == pytest.approx(line_turn, rel=1e-6)
+    # its line is not restored (it has no chord to restore it along)
     np.testing.assert_array_equal(restore_limb_lines(body, body.with_vertices(opened)), opened)
-    # the same animal's straight fore leg, leaning 6° about its shoulder, is turned back
+    # the same animal's straight fore leg, leaning 6° about its shoulder, is turned back by its chord
     fore = limb_sections(body, "forelimbs")[0]
-    leaning = body.vertices.copy()
-    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
-    index = fore.mesh.vertex_index
-    leaning[index] = (leaning[index] - fore.junction) @ turn.T + fore.junction
-    restored = restore_limb_axes(body, body.with_vertices(leaning))
+    restored = restore_limb_axes(body, body.with_vertices(_turned(body, fore, 6.0)))
     assert posture_change(body, body.with_vertices(restored))["forelimbs[0]"]["tilt_degrees"] < 0.01
 
 
-def test_a_half_folded_leg_is_turned_back_part_of_the_way():
-    """Between folded and straight (FOLDED_REACH) the turn fades: a lying horse's fore leg (reach
-    0.6-0.7) leaning 6° is turned back by its kept share, smoothly, not all or nothing."""
-    from scipy.spatial.transform import Rotation
-
-    from allorules.mesh.geometry import smoothstep
-
+def test_a_half_folded_leg_swung_rigidly_is_turned_back():
+    """Between folded and straight (FOLDED_REACH) the chord's turn and the line's are blended by
+    the leg's reach; for a leg swung rigidly both are the swing: a lying horse's fore leg (reach
+    0.6-0.7) leaning 6° is turned back."""
     body = generate_quadruped("horse", vertices=1500, pose="lie").body()
     fore = limb_sections(body, "forelimbs")[0]
-    reach = limb_reach(fore)
-    assert FOLDED_REACH[0] < reach < FOLDED_REACH[1]
-    kept = float(smoothstep(np.array((reach - FOLDED_REACH[0]) / (FOLDED_REACH[1] - FOLDED_REACH[0]))))
-    leaning = body.vertices.copy()
-    turn = Rotation.from_euler("z", 6, degrees=True).as_matrix()
-    index = fore.mesh.vertex_index
-    leaning[index] = (leaning[index] - fore.junction) @ turn.T + fore.junction
-    before = posture_change(body, body.with_vertices(leaning))["forelimbs[0]"]["tilt_degrees"]
+    assert FOLDED_REACH[0] < limb_reach(fore) < FOLDED_REACH[1]
+    leaning = _turned(body, fore, 6.0)
+    assert posture_change(body, body.with_vertices(leaning))["forelimbs[0]"]["tilt_degrees"] > 5.0
     restored = restore_limb_axes(body, body.with_vertices(leaning))
-    after = posture_change(body, body.with_vertices(restored))["forelimbs[0]"]["tilt_degrees"]
-    assert after == pytest.approx((1.0 - kept) * before, abs=0.05)
+    assert posture_change(body, body.with_vertices(restored))["forelimbs[0]"]["tilt_degrees"] < 0.2
 
 
 def test_foot_contact_leaves_a_standing_body_alone(animal):

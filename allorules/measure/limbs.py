@@ -52,8 +52,8 @@ FOOT_SHARE = 0.1
 # A limb's reach (:func:`limb_reach`) below FOLDED_REACH[0] is folded (a hind leg under a sitting
 # animal: 0.17-0.53 on the generated and shared animals), above FOLDED_REACH[1] straight (standing:
 # 0.83-1.0); lying and rearing legs lie between (0.63-0.85). A folded leg's junction -> foot chord
-# says nothing of its direction: the posture does not turn it (allorules.solve.posture) and its
-# tilt is its centre line's turn (:func:`posture_change`).
+# says nothing of its direction: the posture turns it by its whole centre line instead
+# (allorules.solve.posture) and its tilt is its centre line's turn (:func:`posture_change`).
 FOLDED_REACH = (0.5, 0.8)
 
 
@@ -261,11 +261,18 @@ def limb_bend(limb: Limb) -> float:
     return float(np.linalg.norm(across, axis=1).max() / reach)
 
 
+def line_rotation(start: Limb, end: Limb) -> np.ndarray:
+    """The rotation taking a limb's centre line (its junction and section centroids) on ``start``
+    to the same limb's on ``end``: that of the best similarity between them (a folded leg's turn,
+    where its short chord says nothing)."""
+    _, rotation, _ = similarity_fit(np.vstack([start.junction, start.centroids]),
+                                    np.vstack([end.junction, end.centroids]))
+    return rotation
+
+
 def _line_turn(before: Limb, after: Limb) -> float:
-    """The angle in degrees by which a limb's centre line (junction and section centroids) turned:
-    the rotation of the best similarity between the two lines."""
-    _, rotation, _ = similarity_fit(np.vstack([before.junction, before.centroids]),
-                                    np.vstack([after.junction, after.centroids]))
+    """The angle in degrees by which a limb's centre line turned (:func:`line_rotation`)."""
+    rotation = line_rotation(before, after)
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
 
 

@@ -22,8 +22,8 @@ rules measure:
   the last, so that the next step's carried-forward misses make up what it changed.
 
 ``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
-paper's behaviour). The turn and the line fade out on a folded leg (:func:`_kept_share`): it is
-left as Eq. 9 makes it.
+paper's behaviour). A folded leg (:func:`_kept_share`) is turned by its whole centre line, not
+by its chord, and its line is not restored.
 
 The turn moves each leg as a rigid whole below a short blend at its top, and the foot contact
 moves each pair rigidly, so a pair's length, girths and load-bearing section are what the step
@@ -220,14 +220,15 @@ def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
 
 
 def _kept_share(limb) -> float:
-    """How much of a limb's direction and centre line the posture keeps: 1 for a straight leg, 0
-    for a folded one, smooth between (:data:`allorules.measure.limbs.FOLDED_REACH`).
+    """How much of a limb the posture treats by its chord (junction → foot): 1 for a straight
+    leg, 0 for a folded one, smooth between (:data:`allorules.measure.limbs.FOLDED_REACH`).
 
-    A folded leg (sitting, lying) has no direction to keep: its chord, junction → foot, is short
-    beside its length, so Eq. 9's smallest change of the fold turns it by degrees, and the turn
-    and the line, which both follow the chord, turned the whole folded leg about the hip each
-    step: the generated dog sitting at ×0.5 pressed its hind legs into the ground (hind leg
-    length exponent −0.75 for 0.336; left to Eq. 9, every rule met)."""
+    A folded leg's chord (sitting, lying) is short beside its length, so Eq. 9's smallest change
+    of the fold turns it by degrees, and the turn and the line, which both followed the chord,
+    turned the whole folded leg about the hip each step: the generated dog sitting at ×0.5
+    pressed its hind legs into the ground (hind leg length exponent −0.75 for 0.336). Left
+    alone instead, a folded leg swings (a donkey's by 42° in a trial run); turned by the best rotation
+    of its whole centre line, a swing is undone and a change of the fold is not taken for one."""
     from allorules.measure.limbs import FOLDED_REACH, limb_reach
 
     low, high = FOLDED_REACH
@@ -238,25 +239,35 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
 
     Per limb part: R = the smallest rotation taking its axis on ``moved`` (junction centroid →
-    foot tip) back to its axis on ``reference``; vertices turn by R about the junction,
-    x' = x + w·(J + R(x − J) − x), with w rising smoothly (smoothstep) from 0 where the limb is
-    clear of its junction (:attr:`Limb.clear_level`) to 1 at ``POSTURE_BLEND`` of the limb's
-    length along its own field (or half that beyond where it is clear, if later), so the shoulder
-    stays joined to the body. Rigid below the blend: lengths, girths and the load-bearing section are kept.
+    foot tip) back to its axis on ``reference``, or for a folded leg the rotation of the best
+    similarity taking its centre line (junction and section centroids) on ``moved`` to that on
+    ``reference`` (between, the two blended as rotation vectors by :func:`_kept_share`);
+    vertices turn by R about the junction, x' = x + w·(J + R(x − J) − x), with w rising smoothly
+    (smoothstep) from 0 where the limb is clear of its junction (:attr:`Limb.clear_level`) to 1 at
+    ``POSTURE_BLEND`` of the limb's length along its own field (or half that beyond where it is
+    clear, if later), so the shoulder stays joined to the body. Rigid below the blend: lengths,
+    girths and the load-bearing section are kept.
     Bodies without limbs come back unchanged.
     """
+    from allorules.measure.limbs import line_rotation
+
     moves = []
     for before, after in _limb_pairs(reference, moved):
         index = after.mesh.vertex_index
         moves.append((index, np.zeros((len(index), 3))))
+        if not before.sections:
+            continue
         kept = _kept_share(before)
-        if not before.sections or kept == 0.0:
+        turn = np.zeros(3)          # rotation vector
+        if kept > 0.0:              # by the chord
+            chord = _rotation_between(after.tip - after.junction, before.tip - before.junction)
+            if chord is not None:
+                turn += kept * Rotation.from_matrix(chord).as_rotvec()
+        if kept < 1.0 and len(before.sections) >= 2:     # folded: by its whole centre line
+            turn += (1.0 - kept) * Rotation.from_matrix(line_rotation(after, before)).as_rotvec()
+        if not np.any(turn):
             continue
-        rotation = _rotation_between(after.tip - after.junction, before.tip - before.junction)
-        if rotation is None:
-            continue
-        if kept < 1.0:      # a leg partly folded is turned back that share of the way
-            rotation = Rotation.from_rotvec(kept * Rotation.from_matrix(rotation).as_rotvec()).as_matrix()
+        rotation = Rotation.from_rotvec(turn).as_matrix()
         fractions = np.array([section.fraction for section in before.sections])
         lowest = before.clear_level            # the junction's rim does not turn (it would tear)
         blend_level = float(np.interp(max(POSTURE_BLEND, before.clear_fraction + POSTURE_BLEND / 2), fractions,
