@@ -308,7 +308,8 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
     interpolated along the limb's field. d is 0 at the first and at the last section, and above
     and below them, so the body, the leg's top and the foot stay where they are and nothing is
     torn. The junction itself is left alone: moving it would move the body around the groin
-    (tried: faces flipped there; docs/biology-scaling.md, posture).
+    (tried: faces flipped there; docs/biology-scaling.md, posture). The shifts fade out on a
+    folded leg (:func:`_kept_share`), whose chord says nothing of its line.
     Bodies without limbs come back unchanged.
     """
     moves = []
