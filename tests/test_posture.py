@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from allorules.measure.length import region_length
 from allorules.measure.limbs import (
@@ -29,8 +30,6 @@ def animal():
 
 
 def test_restore_limb_axes_turns_a_leaning_leg_back(animal):
-    from scipy.spatial.transform import Rotation
-
     body = animal.body()
     assert np.array_equal(restore_limb_axes(body, body.with_vertices(body.vertices)), body.vertices)
     leg = limb_sections(body, "hindlimbs")[0]
@@ -105,8 +104,6 @@ def _opened(body, leg, amount):
 
 def _turned(body, limb, degrees):
     """``body`` with ``limb`` turned rigidly about its junction by ``degrees`` about the z axis."""
-    from scipy.spatial.transform import Rotation
-
     moved = body.vertices.copy()
     turn = Rotation.from_euler("z", degrees, degrees=True).as_matrix()
     index = limb.mesh.vertex_index
@@ -118,7 +115,7 @@ def test_a_folded_leg_is_turned_back_by_its_centre_line_not_its_chord(sitting):
     """A sitting animal's hind legs fold under it: the chord from hip to paw is a fifth of the leg,
     so a small change of the fold turns it by degrees. Turned back by that chord each step, the
     folded legs of a sitting dog at ×0.5 were pressed into the ground (hind leg length exponent
-    −0.75 for 0.336); left alone, they swung (a donkey's by 42° over a run). A folded leg is turned
+    −0.75 for 0.336); left alone, they swung (a donkey's by 42° in a trial run). A folded leg is turned
     back by the best rotation of its whole centre line: a rigid swing is undone, a change of the
     fold is not taken for one."""
     body = sitting.body()
@@ -144,7 +141,7 @@ def test_a_folded_leg_is_turned_back_by_its_centre_line_not_its_chord(sitting):
     restored = restore_limb_axes(body, body.with_vertices(opened))
     far = hind.mesh.vertex_index[hind.field > np.median(hind.field)]       # below the turn's blend
     _, rotation, _ = similarity_fit(opened[far], restored[far])
-    applied = np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+    applied = np.degrees(Rotation.from_matrix(rotation).magnitude())
     assert applied == pytest.approx(line_turn, rel=1e-6)
     # its line is not restored (it has no chord to restore it along)
     np.testing.assert_array_equal(restore_limb_lines(body, body.with_vertices(opened)), opened)
@@ -329,8 +326,6 @@ def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
     back upright move the leg and not the body, so both must leave every rim vertex where it is:
     risen from the field's lowest value, the stretch weighed 0.48 on part of the horse's rim and 0
     on the chest beside it, and the chest creased along the foreleg's top at ×2 (19 flipped faces)."""
-    from scipy.spatial.transform import Rotation
-
     from allorules.plugins.registry import registry_for
     from allorules.rules.resolve import load_ruleset
     from allorules.runs import pipeline

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from allorules.body import Body
 from allorules.errors import MeasurementError
@@ -272,8 +273,7 @@ def line_rotation(start: Limb, end: Limb) -> np.ndarray:
 
 def _line_turn(before: Limb, after: Limb) -> float:
     """The angle in degrees by which a limb's centre line turned (:func:`line_rotation`)."""
-    rotation = line_rotation(before, after)
-    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+    return float(np.degrees(Rotation.from_matrix(line_rotation(before, after)).magnitude()))
 
 
 def girth_spread(before: Limb, after: Limb) -> float:
@@ -341,7 +341,7 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     for index, limb in enumerate(limbs_before):
         cosine = axes_before[index] @ axes_after[index] / (np.linalg.norm(axes_before[index]) * np.linalg.norm(axes_after[index]))
         tilt = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        if limb_reach(limb) < FOLDED_REACH[0] and len(limb.sections) >= 2:
+        if limb_reach(limb) < FOLDED_REACH[0]:      # (a limb with fewer than two sections reaches 1)
             tilt = _line_turn(limb, limbs_after[index])
         change[f"{limb.region}[{limb.part}]"] = {
             "tilt_degrees": tilt,

@@ -263,7 +263,7 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
             chord = _rotation_between(after.tip - after.junction, before.tip - before.junction)
             if chord is not None:
                 turn += kept * Rotation.from_matrix(chord).as_rotvec()
-        if kept < 1.0 and len(before.sections) >= 2:     # folded: by its whole centre line
+        if kept < 1.0:              # folded: by its whole centre line (kept is 1 below two sections)
             turn += (1.0 - kept) * Rotation.from_matrix(line_rotation(after, before)).as_rotvec()
         if not np.any(turn):
             continue
