@@ -133,24 +133,32 @@ def test_labels_agree_with_the_truth_in_six_poses_turned_at_random(posed, preset
     assert agreement(animal, labelled) >= 0.95
 
 
-@pytest.mark.parametrize("preset, in_doubt, settle", [("horse", "feet", "--up DIR and --forward DIR"),
-                                                       ("elephant", "head from the tail", "--forward DIR")])
-def test_a_sitting_animal_refused_is_labelled_as_its_refusal_says(posed, preset, in_doubt, settle):
+def test_a_sitting_horse_refused_is_labelled_as_its_refusal_says(posed):
     """Sitting (its chest up on straight fore legs, its rump on the ground), the horse's feet are in
-    doubt (its tail's tip lies on the ground by its folded hind feet) and the elephant's ends (its
-    girdles nearly level on its short legs, its rump and head alike in mass); each refusal names the
+    doubt (its tail's tip lies on the ground by its folded hind feet); the refusal names the
     directions that settle it, and given them (as a user who knows the file's axes gives them) the
-    labels agree with the truth: horse 0.972 (0.898 while the torso was split across the level
-    forward direction rather than along its girdles' chord), elephant 0.866 (its head cut at the
-    trunk's root, the skull labelled neck)."""
-    animal = posed(preset, "sit")
+    labels agree with the truth: 0.972 (0.898 while the torso was split across the level forward
+    direction rather than along its girdles' chord)."""
+    animal = posed("horse", "sit")
     matrix = random_rotation(2)
     body = Body(animal.vertices @ matrix.T, animal.faces)
-    with pytest.raises(SegmentationError, match=in_doubt) as refused:
+    with pytest.raises(SegmentationError, match="feet") as refused:
         label_quadruped(body)
-    assert settle in str(refused.value)
+    assert "--up DIR and --forward DIR" in str(refused.value)
     labelled = label_quadruped(body, up=matrix @ [0.0, 1.0, 0.0], forward=matrix @ [1.0, 0.0, 0.0])
-    assert agreement(animal, labelled) >= (0.95 if preset == "horse" else 0.85)
+    assert agreement(animal, labelled) >= 0.95
+
+
+@pytest.mark.parametrize("seed, turn", [(0, 2), (1, 3)])
+def test_a_sitting_elephant_is_labelled_as_sitting(seed, turn):
+    """The elephant seated, its girdles only 17-18° from level on its short legs: read as standing
+    (a level fore girdle plane, its head end and rump alike in mass) it was refused, head or tail;
+    read as far seated as it sits (body_plan.seated_share) it is labelled, 0.892 and 0.900 turned
+    at random (given --up and --forward before, 0.866)."""
+    animal = generate_quadruped("elephant", 2000 + 500 * seed, pose="sit", seed=seed)
+    matrix = random_rotation(turn)
+    labelled = label_quadruped(Body(animal.vertices @ matrix.T, animal.faces))
+    assert agreement(animal, labelled) >= 0.88
 
 
 @pytest.mark.parametrize("seed", [2, 7])

@@ -43,7 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from allorules.errors import SegmentationError
-from allorules.mesh.geometry import plane_section_loops
+from allorules.mesh.geometry import plane_section_loops, smoothstep
 from allorules.mesh.topology import (
     directed_edges,
     face_adjacency,
@@ -78,8 +78,13 @@ MIRROR_ACROSS = 0.9            # at least this share of the other's, and they li
 MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
 MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of its reach (in space) is its end's, no feature
 
-SEATED_TILT = 25.0             # degrees: girdles further from level sit (the shared animals standing: 0.3-20.7;
-                               # the generated horse and dog seated, 32-34)
+# How far an animal sits, from the tilt of the chord between its girdles: level (standing) up to
+# the first angle, sitting from the second, smoothstep between (:func:`seated_share`). Shared
+# animals standing: 0.3-7.7 deg, the camel 13.1 and the dog 389 20.7 (both labelled right read as
+# seated); seated by `repose`: 4-24 (four of eleven at 22.8-24.2); the generated horse and dog
+# seated 32-34. A switch at 25 deg read the horse and the horse 387 seated at 24 deg as standing,
+# their ears left behind a level fore girdle's plane: refused (head or tail).
+SEATED_TILT = (8.0, 20.0)
 
 # Head or tail.
 HEAD_TAIL_MARGIN = 0.6         # summed evidence needed
@@ -452,18 +457,16 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     breast at one end, rump and tail at the other. Cut along the longest loop of each plane, a
     piece that lies mostly beyond one plane is that end's even where it reaches across the other
     plane (a tail curled forward over the back stays with the rump). ``ground``: the normal of the
-    plane the animal stands on, if it does; the spine is then taken level, unless the girdles lie
-    more than SEATED_TILT from level (the animal sits: :func:`is_level`).
+    plane the animal stands on, if it does; the spine is then taken level as far as the animal
+    stands (:func:`spine_direction`).
     """
     girdles = (_girdle(top, first_pair, second_pair), _girdle(top, second_pair, first_pair))
     # The spine's direction: between the centres of the two pairs' leg tops (``leg_tops``: where
     # each leg joins the body; steadier than two points on the underside when the legs are spread).
     centres = [np.mean([leg_tops[foot] for foot in pair], axis=0) for pair in (first_pair, second_pair)]
     chord = centres[0] - centres[1]
-    if ground is not None and is_level(chord, ground):
-        # standing: the spine runs level (legs cut at different heights do not tilt it); a sitting
-        # animal's girdles are far from level, its spine runs from one to the other
-        chord = chord - (chord @ ground) * ground
+    if ground is not None:
+        chord = spine_direction(chord, ground)
     axis = chord / max(np.linalg.norm(chord), 1e-300)
     body = legs < 0
     body_faces = faces   # the whole section: the plane may run through the legs' tops
@@ -508,10 +511,24 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     return ends[0], ends[1]
 
 
-def is_level(chord: np.ndarray, up: np.ndarray) -> bool:
-    """Whether the chord between the girdles lies within SEATED_TILT of level (standing, not sitting)."""
+def seated_share(chord: np.ndarray, up: np.ndarray) -> float:
+    """How far an animal whose girdles lie along ``chord`` sits, in [0, 1]: 0 with the chord within
+    ``SEATED_TILT[0]`` of level (standing), 1 beyond ``SEATED_TILT[1]``, smoothstep between, so
+    that a small change of the mesh (its resolution) never flips how the body is read."""
     length = float(np.linalg.norm(chord))
-    return length > 0 and abs(float(chord @ up)) < np.sin(np.radians(SEATED_TILT)) * length
+    if not length > 0:
+        return 0.0
+    tilt = np.degrees(np.arcsin(min(1.0, abs(float(chord @ up)) / length)))
+    low, high = SEATED_TILT
+    return float(smoothstep(np.asarray((tilt - low) / (high - low))))
+
+
+def spine_direction(chord: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The spine's direction from the chord between the girdles: level for a standing animal (legs
+    cut at different heights do not tilt it), the chord itself for a sitting one (its spine runs
+    from one girdle to the other), the chord's rise kept in proportion between."""
+    rise = float(chord @ up)
+    return chord - (1.0 - seated_share(chord, up)) * rise * up
 
 
 def _torso_loop(vertices, faces, adjacency, point, normal):

@@ -194,10 +194,18 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     for foot in hind:
         labels[legs == foot] = HINDLIMBS
     # The torso runs along the ground's forward direction for an animal standing on its feet (as the
-    # generator's planes do), else along the chord between the girdles (rearing, lying, and sitting:
-    # its feet on one ground, but its girdles far from level).
-    standing = (choice.ground is not None or up_given) and body_plan.is_level(chord, up)
-    torso_axis = forward_axis if standing or not np.linalg.norm(chord) > 0 else chord / np.linalg.norm(chord)
+    # generator's planes do), along the chord between the girdles where it has no ground (rearing,
+    # lying), and rises with that chord as far as it sits (its feet on one ground, its girdles far
+    # from level: body_plan.seated_share).
+    if not np.linalg.norm(chord) > 0:
+        torso_axis = forward_axis
+    elif choice.ground is not None or up_given:
+        rise = float(chord @ up)
+        run = float(np.linalg.norm(chord - rise * up))
+        spine = run * forward_axis + body_plan.seated_share(chord, up) * rise * up
+        torso_axis = spine / np.linalg.norm(spine)
+    else:
+        torso_axis = chord / np.linalg.norm(chord)
     head_tip = ends.head.main_tip
     if head_tip is None:   # a head that does not stick out: its farthest point from the tail's girdle
         from_tail = dijkstra(graph, indices=ends.tail.girdle)
