@@ -523,12 +523,16 @@ def seated_share(chord: np.ndarray, up: np.ndarray) -> float:
     return float(smoothstep(np.asarray((tilt - low) / (high - low))))
 
 
-def spine_direction(chord: np.ndarray, up: np.ndarray) -> np.ndarray:
+def spine_direction(chord: np.ndarray, up: np.ndarray, forward: np.ndarray | None = None) -> np.ndarray:
     """The spine's direction from the chord between the girdles: level for a standing animal (legs
     cut at different heights do not tilt it), the chord itself for a sitting one (its spine runs
-    from one girdle to the other), the chord's rise kept in proportion between."""
+    from one girdle to the other), the chord's rise kept in proportion between. ``forward``: the
+    level direction to run along instead of the chord's own (the user's ``--forward``)."""
     rise = float(chord @ up)
-    return chord - (1.0 - seated_share(chord, up)) * rise * up
+    level = chord - rise * up
+    if forward is not None:
+        level = float(np.linalg.norm(level)) * np.asarray(forward, dtype=float)
+    return level + seated_share(chord, up) * rise * up
 
 
 def _torso_loop(vertices, faces, adjacency, point, normal):

@@ -200,9 +200,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     if not np.linalg.norm(chord) > 0:
         torso_axis = forward_axis
     elif choice.ground is not None or up_given:
-        rise = float(chord @ up)
-        run = float(np.linalg.norm(chord - rise * up))
-        spine = run * forward_axis + body_plan.seated_share(chord, up) * rise * up
+        spine = body_plan.spine_direction(chord, up, forward_axis)
         torso_axis = spine / np.linalg.norm(spine)
     else:
         torso_axis = chord / np.linalg.norm(chord)
