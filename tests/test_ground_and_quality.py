@@ -253,9 +253,49 @@ def test_a_leg_swollen_along_part_of_its_length_is_measured(generated_horse):
     assert change["forelimbs[0]"]["girth_spread"] == pytest.approx(0.4, abs=0.1)
     assert all(change[leg]["girth_spread"] < 1e-6 for leg in change if leg != "forelimbs[0]")
     # a run's legs beyond the limit make it look distorted (ruleset_run._finish), one line per leg
-    from allorules.measure.quality import LEG_GIRTH_SPREAD_LIMIT, swollen_legs
+    from allorules.measure.quality import LEG_GIRTH_SPREAD_LIMIT, distorted_legs
 
-    assert swollen_legs(change) == []
+    assert distorted_legs(change) == []
     swollen[limb.mesh.vertex_index] += 2.0 * bump[:, None] * offsets                  # 2.4 × across in the middle
-    lines = swollen_legs(posture_change(body, body.with_vertices(swollen)))
+    lines = distorted_legs(posture_change(body, body.with_vertices(swollen)))
     assert len(lines) == 1 and lines[0].startswith("forelimbs[0] swelled") and f"limit {100 * LEG_GIRTH_SPREAD_LIMIT:.0f}%" in lines[0]
+
+
+def test_a_leg_swung_or_crumpled_makes_the_run_look_distorted(generated_horse):
+    """A fore leg turned rigidly by 45° about its junction measures a 45° tilt and no change of
+    shape: one line, swung. Its lower half turned 90° about its middle (a knee bent backwards) changes
+    its shape by 0.46 of its size; turned 30° (0.14), under both limits, it is let through."""
+    from scipy.spatial.transform import Rotation
+
+    from allorules.measure.limbs import limb_sections, posture_change
+    from allorules.measure.quality import (
+        LEG_SHAPE_LIMIT,
+        LEG_TURN_LIMIT,
+        distorted_legs,
+    )
+
+    body = generated_horse.body()
+    limb = limb_sections(body, "forelimbs")[0]
+    index = limb.mesh.vertex_index
+    side = np.cross(body.frame.forward, body.frame.up)
+
+    def turned(points, pivot, degrees):
+        return pivot + (points - pivot) @ Rotation.from_rotvec(np.radians(degrees) * side).as_matrix().T
+
+    swung = body.vertices.copy()
+    swung[index] = turned(swung[index], limb.junction, 45.0)
+    change = posture_change(body, body.with_vertices(swung))
+    assert change["forelimbs[0]"]["tilt_degrees"] == pytest.approx(45.0, abs=0.5)
+    assert change["forelimbs[0]"]["shape_change"] < 0.01
+    assert distorted_legs(change) == [f"forelimbs[0] swung by 45° over the run (limit {LEG_TURN_LIMIT:.0f}°)"]
+
+    _, along = limb.offsets_across()
+    lower = index[along > 0.5]
+    knee = limb.section_at(0.5).loop.points.mean(axis=0)
+    for degrees, distorted in ((30.0, False), (90.0, True)):
+        bent = body.vertices.copy()
+        bent[lower] = turned(bent[lower], knee, degrees)
+        change = posture_change(body, body.with_vertices(bent))
+        lines = [line for line in distorted_legs(change) if "changed shape" in line]
+        assert (change["forelimbs[0]"]["shape_change"] > LEG_SHAPE_LIMIT) == distorted
+        assert len(lines) == int(distorted)

@@ -38,7 +38,10 @@ __all__ = [
     "rule_checks",
     "quality_report",
     "distortions",
+    "distorted_legs",
     "FEATURE_SHAPE_LIMIT",
+    "LEG_SHAPE_LIMIT",
+    "LEG_TURN_LIMIT",
     "ROUGHNESS_SHARE_LIMIT",
 ]
 
@@ -382,13 +385,30 @@ FEATURE_SHAPE_LIMIT = 0.25       # a small feature's shape change, in units of i
 # since it tries the trunk held without κ first (43e7ba5).
 LEG_GIRTH_SPREAD_LIMIT = 0.8
 
+# A leg turned over the run (limbs.posture_change's tilt: its chord, or a folded leg's centre line)
+# or bent out of any affine image of itself (its shape change, in units of its size) is no longer
+# the same leg. Outputs that look right, seated, lying and standing (docs/benchmarks.md, "Legs
+# swung or crumpled"), measure up to 19.9° and 0.29; the donkey 385 seated at ×0.5 converged with
+# a folded hind leg swung forward, its hoof crumpled in front of its fore legs, at 90.6° and 0.54.
+LEG_TURN_LIMIT = 30.0
+LEG_SHAPE_LIMIT = 0.4
 
-def swollen_legs(posture: Mapping[str, Mapping[str, float]]) -> list[str]:
+
+def distorted_legs(posture: Mapping[str, Mapping[str, float]]) -> list[str]:
     """Each leg of a run's ``posture`` (:func:`allorules.measure.limbs.posture_change`) whose girth
-    changed more unevenly along it than LEG_GIRTH_SPREAD_LIMIT; one line each, empty when none."""
-    return [f"{leg} swelled along part of its length: its girth changed unevenly by {100 * change['girth_spread']:.0f}% "
-            f"(limit {100 * LEG_GIRTH_SPREAD_LIMIT:.0f}%)"
-            for leg, change in posture.items() if change.get("girth_spread", 0.0) > LEG_GIRTH_SPREAD_LIMIT]
+    changed more unevenly along it than LEG_GIRTH_SPREAD_LIMIT (swollen), that turned by more than
+    LEG_TURN_LIMIT or whose shape changed by more than LEG_SHAPE_LIMIT; one line each, empty when none."""
+    found = []
+    for leg, change in posture.items():
+        if change.get("girth_spread", 0.0) > LEG_GIRTH_SPREAD_LIMIT:
+            found.append(f"{leg} swelled along part of its length: its girth changed unevenly by "
+                         f"{100 * change['girth_spread']:.0f}% (limit {100 * LEG_GIRTH_SPREAD_LIMIT:.0f}%)")
+        if change.get("tilt_degrees", 0.0) > LEG_TURN_LIMIT:
+            found.append(f"{leg} swung by {change['tilt_degrees']:.0f}° over the run (limit {LEG_TURN_LIMIT:.0f}°)")
+        if change.get("shape_change", 0.0) > LEG_SHAPE_LIMIT:
+            found.append(f"{leg} changed shape by {100 * change['shape_change']:.0f}% of its size beyond a stretch "
+                         f"(limit {100 * LEG_SHAPE_LIMIT:.0f}%)")
+    return found
 
 
 def distortions(before: Body, after: np.ndarray) -> list[str]:

@@ -54,7 +54,7 @@ from allorules.errors import (
 from allorules.measure.length import trunk_length
 from allorules.measure.mass import body_mass, region_mass
 from allorules.measure.parts import TORSO_REGIONS, carry_choices
-from allorules.measure.quality import distortions, flipped_faces, swollen_legs
+from allorules.measure.quality import distorted_legs, distortions, flipped_faces
 from allorules.measure.stress import StressGauge
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.specs import ConstraintContext
@@ -558,7 +558,7 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         misses.extend(("trunk", message) for message in _check_trunk_length(result, initial, final, ruleset, stretched))
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         misses.extend(("distorted", f"the output looks distorted ({problem})")
-                      for problem in distortions(initial, final.vertices) + swollen_legs(result.posture or {}))
+                      for problem in distortions(initial, final.vertices) + distorted_legs(result.posture or {}))
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
