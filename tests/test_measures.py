@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from allorules.body import Body, Frame
 from allorules.errors import MeasurementError
@@ -273,6 +274,30 @@ def test_a_moved_skeleton_is_its_loops_moved_one_by_one_and_follows_a_similarity
     np.testing.assert_allclose(turned.points, 3.0 * result.points @ q.T + 2.0, rtol=0, atol=1e-9)
     assert turned.diameter == pytest.approx(3.0 * result.diameter, rel=1e-12)
     assert moved.moved(vertices).diameter == pytest.approx(result.diameter, rel=1e-12)   # and back
+
+
+def test_joined_loops_say_how_each_loop_turned():
+    """Each loop's best rotation (how a folded leg's cross-sections turned, posture.LimbFolds):
+    under a similarity every loop turned by its rotation; loops turned each by its own angle about
+    the capsule's axis are told apart; a proper rotation even for a mirrored loop."""
+    from allorules.measure.sections import join_loops
+
+    vertices, faces = capsule(10.0, 1.0)
+    loops = [loop for loop in skeleton(vertices, faces, fiedler_vector(vertices, faces)).loops if loop is not None]
+    joined = join_loops(loops)
+    start = joined.points(vertices)
+    q, _ = np.linalg.qr(np.random.default_rng(5).normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    rotations = joined.rotations(start, joined.points(2.0 * vertices @ q.T + 1.0))
+    np.testing.assert_allclose(rotations, np.broadcast_to(q, rotations.shape), rtol=0, atol=1e-9)
+    axis = np.argmax(np.ptp(vertices, axis=0))                      # the capsule's long axis
+    angle = 0.3 * vertices[:, axis]                                  # each slice turned by its own angle
+    twisted = Rotation.from_rotvec(np.outer(angle, np.eye(3)[axis])).apply(vertices)
+    turned = Rotation.from_matrix(joined.rotations(start, joined.points(twisted))).as_rotvec()
+    expected = 0.3 * np.array([loop.centroid[axis] for loop in loops])
+    np.testing.assert_allclose(turned[:, axis], expected, rtol=0, atol=0.05)
+    mirrored = joined.rotations(start, start * np.array([1.0, 1.0, -1.0]))
+    np.testing.assert_allclose(np.linalg.det(mirrored), 1.0, atol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------------

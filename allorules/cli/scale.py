@@ -354,10 +354,11 @@ def format_table(result) -> str:
         bend = max(change["bend"] for change in result.posture.values())
         spread = max(change.get("girth_spread", 0.0) for change in result.posture.values())
         shape = max(change.get("shape_change", 0.0) for change in result.posture.values())
+        fold = max(change.get("fold_degrees", 0.0) for change in result.posture.values())
         lines.append(f"legs lean by up to {tilt:.1f}°, a foot rose {100 * lift:.1f}% of a leg's length, bow added up to "
-                     f"{100 * bend:+.1f}% of a leg's length, girth changed unevenly along a leg by up to "
-                     f"{100 * spread:.0f}%, a leg's shape changed by up to {100 * shape:.0f}% of its size beyond a "
-                     "stretch (not rules; see the report's posture)")
+                     f"{100 * bend:+.1f}% of a leg's length, a leg's fold opened or closed by up to {fold:.1f}°, girth "
+                     f"changed unevenly along a leg by up to {100 * spread:.0f}%, a leg's shape changed by up to "
+                     f"{100 * shape:.0f}% of its size beyond a stretch (not rules; see the report's posture)")
     return "\n".join(lines)
 
 

@@ -42,7 +42,13 @@ from allorules.measure.sections import (
     isocontour_loops,
     isocontour_stack,
 )
-from allorules.mesh.geometry import affine_misfit, similarity_fit, vertex_areas
+from allorules.mesh.geometry import (
+    affine_misfit,
+    rotation_between,
+    similarity_fit,
+    smoothstep,
+    vertex_areas,
+)
 
 # Share of a limb's area at its far end (the foot: a hoof, a wide sole) that a limb's skeleton
 # does not cut into sections: the field along the leg flattens across a sole, where its
@@ -262,6 +268,26 @@ def limb_bend(limb: Limb) -> float:
     return float(np.linalg.norm(across, axis=1).max() / reach)
 
 
+def fold_turn(before: Limb, after: Limb) -> float:
+    """How far a limb's fold opened or closed from ``before`` to ``after``, in degrees: the angle
+    of its lower half's turn against its upper half's, each the best rotation of its sections'
+    loops (the first half of the sections and the rest; their many points, so that a section that
+    jumps at the fold, a level cutting thigh and shin at once, counts for little). 0 under any
+    similarity and for a leg swung as a whole; a knee bent by 30° reads about 30°. 0 for a limb
+    with fewer than four sections."""
+    count = min(len(before.sections), len(after.sections))
+    if count < 4:
+        return 0.0
+
+    def turn(sections: slice) -> np.ndarray:
+        _, rotation, _ = similarity_fit(np.vstack([section.loop.points for section in before.sections[sections]]),
+                                        np.vstack([section.loop.points for section in after.sections[sections]]))
+        return rotation
+
+    upper, lower = turn(slice(0, count // 2)), turn(slice(count // 2, count))
+    return float(np.degrees(Rotation.from_matrix(upper.T @ lower).magnitude()))
+
+
 def line_rotation(start: Limb, end: Limb) -> np.ndarray:
     """The rotation taking a limb's centre line (its junction and section centroids) on ``start``
     to the same limb's on ``end``: that of the best similarity between them (a folded leg's turn,
@@ -271,9 +297,32 @@ def line_rotation(start: Limb, end: Limb) -> np.ndarray:
     return rotation
 
 
-def _line_turn(before: Limb, after: Limb) -> float:
-    """The angle in degrees by which a limb's centre line turned (:func:`line_rotation`)."""
-    return float(np.degrees(Rotation.from_matrix(line_rotation(before, after)).magnitude()))
+def straight_share(limb: Limb) -> float:
+    """How much of a limb's turn is its chord's (junction → foot tip): 1 for a straight leg, 0 for
+    a folded one, smooth between (its :func:`limb_reach` across :data:`FOLDED_REACH`).
+
+    A folded leg's chord (sitting, lying) is short beside its length, so the smallest change of
+    its fold turns the chord by degrees: turned back by its chord each step, the folded legs of
+    the generated dog sitting at ×0.5 were pressed into the ground (hind leg length exponent
+    −0.75 for 0.336). Its whole centre line's turn (:func:`line_rotation`) is a swing undone,
+    not a change of the fold taken for one."""
+    low, high = FOLDED_REACH
+    return float(smoothstep(np.array((limb_reach(limb) - low) / (high - low))))
+
+
+def limb_turn(before: Limb, after: Limb) -> np.ndarray:
+    """The rotation, as a rotation vector, by which a limb turned from ``before`` to ``after``:
+    the smallest rotation of its chord, that of its whole centre line (:func:`line_rotation`),
+    blended by :func:`straight_share` of ``before``. The one measure of a leg's turn: the posture
+    turns a leg back by it and the report's ``tilt_degrees`` is its angle."""
+    share, turn = straight_share(before), np.zeros(3)
+    if share > 0.0:
+        chord = rotation_between(before.tip - before.junction, after.tip - after.junction)
+        if chord is not None:
+            turn += share * Rotation.from_matrix(chord).as_rotvec()
+    if share < 1.0:     # (a limb with fewer than two sections reaches 1)
+        turn += (1.0 - share) * Rotation.from_matrix(line_rotation(before, after)).as_rotvec()
+    return turn
 
 
 def girth_spread(before: Limb, after: Limb) -> float:
@@ -308,14 +357,15 @@ def _shape_change(limb: Limb, before: np.ndarray, after: np.ndarray, areas: np.n
 def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
     """How the limbs' stance and shape changed from ``before`` to ``after`` (same faces and labels).
 
-    Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle between its axis (junction
-    centroid → foot tip) before and after; ``foot_lift``, the change of the foot's height above the
-    lowest foot, as a share of the leg's length; ``bend``, the change of :func:`limb_bend` (a leg
-    that bows); ``girth_spread``, :func:`girth_spread` (a leg swollen along part of its length);
-    ``shape_change``, how far the leg after, clear of its junction, is from any affine image of
-    the leg before (:func:`allorules.mesh.geometry.affine_misfit`, area-weighted, in units of its
-    size: a leg grown longer and thicker by its own factors is 0, one bent, curled or crumpled is
-    not).
+    Per limb part (``"forelimbs[0]"`` …): ``tilt_degrees``, the angle of :func:`limb_turn` (its
+    axis's turn, junction centroid → foot tip, for a straight leg, its centre line's for a folded
+    one); ``foot_lift``, the change of the foot's height above the lowest foot, as a share of the
+    leg's length; ``bend``, the change of :func:`limb_bend` (a leg that bows); ``fold_degrees``,
+    :func:`fold_turn` (a fold opened or closed, a knee bent); ``girth_spread``,
+    :func:`girth_spread` (a leg swollen along part of its length); ``shape_change``, how far the
+    leg after, clear of its junction, is from any affine image of the leg before
+    (:func:`allorules.mesh.geometry.affine_misfit`, area-weighted, in units of its size: a leg grown
+    longer and thicker by its own factors is 0, one bent, curled or crumpled is not).
     Heights are taken along :func:`stance_down` of ``before``. Nothing rules ask for; the report
     shows it because an allometric edit can meet every rule yet leave the animal
     leaning or its legs bent.
@@ -328,25 +378,20 @@ def posture_change(before: Body, after: Body) -> dict[str, dict[str, float]]:
 
     down = stance_down(limbs_before, before.frame)
 
-    def stance(limbs: list[Limb]) -> tuple[np.ndarray, np.ndarray]:
-        axes = np.array([limb.tip - limb.junction for limb in limbs])
+    def stance(limbs: list[Limb]) -> np.ndarray:
         heights = -np.array([limb.tip @ down for limb in limbs])
         lengths = np.array([limb.length for limb in limbs])
-        return axes, (heights - heights.min()) / lengths
+        return (heights - heights.min()) / lengths
 
     areas = vertex_areas(before.vertices, before.faces)
-    axes_before, lift_before = stance(limbs_before)
-    axes_after, lift_after = stance(limbs_after)
+    lift_before, lift_after = stance(limbs_before), stance(limbs_after)
     change = {}
     for index, limb in enumerate(limbs_before):
-        cosine = axes_before[index] @ axes_after[index] / (np.linalg.norm(axes_before[index]) * np.linalg.norm(axes_after[index]))
-        tilt = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        if limb_reach(limb) < FOLDED_REACH[0]:      # (a limb with fewer than two sections reaches 1)
-            tilt = _line_turn(limb, limbs_after[index])
         change[f"{limb.region}[{limb.part}]"] = {
-            "tilt_degrees": tilt,
+            "tilt_degrees": float(np.degrees(np.linalg.norm(limb_turn(limb, limbs_after[index])))),
             "foot_lift": float(lift_after[index] - lift_before[index]),
             "bend": limb_bend(limbs_after[index]) - limb_bend(limb),
+            "fold_degrees": fold_turn(limb, limbs_after[index]),
             "girth_spread": girth_spread(limb, limbs_after[index]),
             "shape_change": _shape_change(limb, before.vertices, after.vertices, areas),
         }

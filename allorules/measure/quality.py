@@ -251,7 +251,8 @@ def small_feature_changes(before: Body, after: np.ndarray, features: Sequence | 
 
 @dataclass(frozen=True)
 class LegStance:
-    """One leg over a run: how far it leans, how far its foot rose, how much more it bows."""
+    """One leg over a run: how far it leans, how far its foot rose, how much more it bows, how far
+    its fold opened or closed."""
 
     leg: str
     tilt_degrees: float
@@ -259,21 +260,22 @@ class LegStance:
     bend: float             # change of the bow, in leg lengths
     girth_spread: float     # how unevenly its girth changed along it (limbs.girth_spread)
     shape_change: float     # how far from any affine image of itself (bent, curled), in units of its size
+    fold_degrees: float = 0.0   # how far its fold opened or closed, a knee bent (limbs.fold_turn)
 
     def as_dict(self) -> dict:
         return {"leg": self.leg, "tilt_degrees": float(self.tilt_degrees), "foot_lift": float(self.foot_lift),
                 "bend": float(self.bend), "girth_spread": float(self.girth_spread),
-                "shape_change": float(self.shape_change)}
+                "shape_change": float(self.shape_change), "fold_degrees": float(self.fold_degrees)}
 
 
 def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
-    """Each leg's lean, foot lift, bow change, girth spread and shape change
+    """Each leg's lean, foot lift, bow change, girth spread, shape change and fold change
     (:func:`allorules.measure.limbs.posture_change`)."""
     from allorules.measure.limbs import posture_change
 
     change = posture_change(before, before.with_vertices(np.asarray(after, dtype=float)))
     return [LegStance(leg, values["tilt_degrees"], values["foot_lift"], values["bend"], values["girth_spread"],
-                      values["shape_change"]) for leg, values in change.items()]
+                      values["shape_change"], values["fold_degrees"]) for leg, values in change.items()]
 
 
 @dataclass(frozen=True)

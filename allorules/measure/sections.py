@@ -20,7 +20,7 @@ import scipy.sparse as sparse
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg
 
-from allorules.mesh.geometry import vertex_areas
+from allorules.mesh.geometry import nearest_rotations, vertex_areas
 from allorules.mesh.topology import boundary_edge_loops, directed_edges, face_adjacency
 from allorules.spectral.eigen import few_smallest_eigenpairs
 from allorules.spectral.laplacian import cotangent_laplacian
@@ -164,6 +164,16 @@ class JoinedLoops:
             centroids[index] = points[first:first + self.counts[index]].mean(axis=0)
         return centroids
 
+    def rotations(self, start: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Each loop's best rotation (n, 3, 3) from its points ``start`` to its points ``points``
+        (both end to end, as :meth:`points` gives them), about the points' means
+        (:func:`allorules.mesh.geometry.nearest_rotations`): how each cross-section turned."""
+        counts = np.maximum(self.counts, 1)[:, None]
+        start = start - np.repeat(self._sums(start) / counts, self.counts, axis=0)
+        points = points - np.repeat(self._sums(points) / counts, self.counts, axis=0)
+        covariances = self._sums(np.einsum("ij,ik->ijk", points, start).reshape(-1, 9)).reshape(-1, 3, 3)
+        return nearest_rotations(covariances)[0]
+
     def areas(self, points: np.ndarray) -> np.ndarray:
         """Each loop's :attr:`Loop.area`, ‖½ Σ (p_k − m) × (p_{k+1} − m)‖ about its points' mean m."""
         counts = np.maximum(self.counts, 1)
@@ -172,7 +182,7 @@ class JoinedLoops:
         return np.linalg.norm(0.5 * self._sums(crossed), axis=1)
 
 
-def _joined(loops: list[Loop]) -> JoinedLoops:
+def join_loops(loops: list[Loop]) -> JoinedLoops:
     """``loops`` (isocontours on mesh edges, or mesh boundaries on vertices) as :class:`JoinedLoops`."""
     edges = []
     for loop in loops:
@@ -508,7 +518,7 @@ class Skeleton:
         """
         vertices = np.asarray(vertices, dtype=np.float64)
         if self.moving is None:
-            self.moving = _joined([loop for loop in self.loops if loop is not None])
+            self.moving = join_loops([loop for loop in self.loops if loop is not None])
         joined = self.moving
         moved_points = joined.points(vertices)
         centroids = iter(joined.centroids(moved_points))

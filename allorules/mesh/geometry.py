@@ -1,6 +1,7 @@
 """Geometry of triangle meshes as plain numpy: areas, normals, enclosed volume, flipped faces, the
-best similarity between two point sets (Umeyama), plane sections; and the smoothstep every blend
-along a surface uses.
+best similarity between two point sets (Umeyama) and the rotation nearest each of many
+cross-covariances (Kabsch), the smallest rotation between two directions, plane sections; and
+the smoothstep every blend along a surface uses.
 
 One home for each of these operations; every stage (repair, the Laplacian, measurement, export,
 the generated quadruped) calls them from here.
@@ -23,6 +24,18 @@ def turn_about_line(points: np.ndarray, pivot: np.ndarray, axis: np.ndarray, ang
     offset = points - pivot
     cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
     return pivot + offset * cos + np.cross(axis, offset) * sin + np.outer(offset @ axis, axis) * (1.0 - cos)
+
+
+def rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
+    """The smallest rotation (3×3) taking direction ``start`` to direction ``end`` (Rodrigues);
+    ``None`` when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a
+    limb turned upside down is not a lean to straighten)."""
+    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
+    axis, cosine = np.cross(start, end), float(start @ end)
+    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
+        return None
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
 
 
 def near_line(points: np.ndarray, point: np.ndarray, direction: np.ndarray, radius: float, blend: float) -> np.ndarray:
@@ -112,13 +125,25 @@ def similarity_fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray |
     mean_source, mean_target = weights @ source, weights @ target
     p, q = source - mean_source, target - mean_target
     covariance = (q * weights[:, None]).T @ p              # Σ w q pᵀ
-    u, singular, vt = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(u @ vt)) or 1.0
-    correction = np.diag([1.0, 1.0, sign])
-    rotation = u @ correction @ vt
+    rotation, singular = nearest_rotations(covariance[None])
     variance = float(weights @ np.einsum("ij,ij->i", p, p))
-    scale = float(np.sum(singular * np.diag(correction)) / variance) if variance > 0 else 1.0
-    return scale, rotation, mean_target - scale * rotation @ mean_source
+    scale = float(singular[0].sum() / variance) if variance > 0 else 1.0
+    return scale, rotation[0], mean_target - scale * rotation[0] @ mean_source
+
+
+def nearest_rotations(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each cross-covariance Σ q pᵀ (n, 3, 3), the proper rotation R maximising tr(R Σᵀ), the
+    best rotation of the points p onto the points q (Kabsch: U diag(1, 1, ±1) Vᵀ of Σ's SVD), and
+    its singular values with the last one's sign corrected, (n, 3) (their sum over the
+    variance of p is the best scale, :func:`similarity_fit`)."""
+    u, singular, vt = np.linalg.svd(covariances)
+    sign = np.sign(np.linalg.det(u @ vt))
+    sign[sign == 0] = 1.0
+    u = u.copy()
+    u[:, :, 2] *= sign[:, None]
+    singular = singular.copy()
+    singular[:, 2] *= sign
+    return u @ vt, singular
 
 
 def affine_misfit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> float:

@@ -14,6 +14,9 @@ rules measure:
   where it is (moved rigidly, the leg dragged the chest down around it like a sleeve: the
   Princeton horse 382 at ×0.5). The solver measures, and so meets its targets on, the mesh with
   the feet put back.
+* :class:`LimbFolds` gives a folded leg's fold back the shape it had at the step's start (Eq. 9
+  opens or closes it); like the foot contact it is part of each step's transform, so the solver
+  measures the leg with its fold kept.
 * :func:`restore_limb_axes` turns each leg back to the direction it had at the step's start,
   after the step; the step's foot contact is then applied once more, since turning a slanted
   leg moves its foot (:func:`allorules.runs.ruleset_run.scale_with_ruleset`).
@@ -21,9 +24,10 @@ rules measure:
   the shape it had at the step's start (a leg Eq. 9 bowed is straightened), after every step but
   the last, so that the next step's carried-forward misses make up what it changed.
 
-``posture: keep`` (the default) does all three, ``upright`` only the turn, ``free`` none (the
-paper's behaviour). A folded leg (:func:`_kept_share`) is turned by its whole centre line, not
-by its chord, and its line is not restored.
+``posture: keep`` (the default) does all four, ``upright`` only the turn, ``free`` none (the
+paper's behaviour). A folded leg (:func:`allorules.measure.limbs.straight_share`) is turned by
+its whole centre line, not by its chord, and its line is given back by :class:`LimbFolds`, not
+straightened along its chord.
 
 The turn moves each leg as a rigid whole below a short blend at its top, and the foot contact
 moves each pair rigidly, so a pair's length, girths and load-bearing section are what the step
@@ -41,7 +45,8 @@ from scipy.sparse.linalg import splu
 from scipy.spatial.transform import Rotation
 
 from allorules.body import Body
-from allorules.mesh.geometry import smoothstep
+from allorules.measure.sections import JoinedLoops
+from allorules.mesh.geometry import rotation_between, similarity_fit, smoothstep
 from allorules.mesh.topology import vertex_graph
 
 POSTURE_BLEND = 0.25    # share of a limb's length, from its junction, over which the turn fades in
@@ -207,41 +212,13 @@ def _conductances(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
 # Legs upright
 
 
-def _rotation_between(start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
-    """The smallest rotation taking direction ``start`` to direction ``end`` (Rodrigues); ``None``
-    when they already agree (to 1e-12), or point opposite ways (no smallest rotation; a limb
-    turned upside down is not a lean to straighten)."""
-    start, end = start / np.linalg.norm(start), end / np.linalg.norm(end)
-    axis, cosine = np.cross(start, end), float(start @ end)
-    if (np.linalg.norm(axis) < 1e-12 and cosine > 0) or 1.0 + cosine < 1e-9:   # agree, or a half-turn
-        return None
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + cross + cross @ cross / (1.0 + cosine)       # I + [v]× + [v]×² (1 − c)/s²
-
-
-def _kept_share(limb) -> float:
-    """How much of a limb the posture treats by its chord (junction → foot): 1 for a straight
-    leg, 0 for a folded one, smooth between (:data:`allorules.measure.limbs.FOLDED_REACH`).
-
-    A folded leg's chord (sitting, lying) is short beside its length, so Eq. 9's smallest change
-    of the fold turns it by degrees, and the turn and the line, which both followed the chord,
-    turned the whole folded leg about the hip each step: the generated dog sitting at ×0.5
-    pressed its hind legs into the ground (hind leg length exponent −0.75 for 0.336). Left
-    alone instead, a folded leg swings (a donkey's by 42° in a trial run); turned by the best rotation
-    of its whole centre line, a swing is undone and a change of the fold is not taken for one."""
-    from allorules.measure.limbs import FOLDED_REACH, limb_reach
-
-    low, high = FOLDED_REACH
-    return float(smoothstep(np.array((limb_reach(limb) - low) / (high - low))))
-
-
 def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     """``moved``'s vertices with each limb turned back to the direction it had in ``reference``.
 
     Per limb part: R = the smallest rotation taking its axis on ``moved`` (junction centroid →
     foot tip) back to its axis on ``reference``, or for a folded leg the rotation of the best
     similarity taking its centre line (junction and section centroids) on ``moved`` to that on
-    ``reference`` (between, the two blended as rotation vectors by :func:`_kept_share`);
+    ``reference`` (between, the two blended as rotation vectors: :func:`allorules.measure.limbs.limb_turn`);
     vertices turn by R about the junction, x' = x + w·(J + R(x − J) − x), with w rising smoothly
     (smoothstep) from 0 where the limb is clear of its junction (:attr:`Limb.clear_level`) to 1 at
     ``POSTURE_BLEND`` of the limb's length along its own field (or half that beyond where it is
@@ -249,7 +226,7 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
     girths and the load-bearing section are kept.
     Bodies without limbs come back unchanged.
     """
-    from allorules.measure.limbs import line_rotation
+    from allorules.measure.limbs import limb_turn
 
     moves = []
     for before, after in _limb_pairs(reference, moved):
@@ -257,14 +234,7 @@ def restore_limb_axes(reference: Body, moved: Body) -> np.ndarray:
         moves.append((index, np.zeros((len(index), 3))))
         if not before.sections:
             continue
-        kept = _kept_share(before)
-        turn = np.zeros(3)          # rotation vector
-        if kept > 0.0:              # by the chord
-            chord = _rotation_between(after.tip - after.junction, before.tip - before.junction)
-            if chord is not None:
-                turn += kept * Rotation.from_matrix(chord).as_rotvec()
-        if kept < 1.0:              # folded: by its whole centre line (kept is 1 below two sections)
-            turn += (1.0 - kept) * Rotation.from_matrix(line_rotation(after, before)).as_rotvec()
+        turn = -limb_turn(before, after)        # rotation vector, back from after to before
         if not np.any(turn):
             continue
         rotation = Rotation.from_rotvec(turn).as_matrix()
@@ -309,13 +279,16 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
     and below them, so the body, the leg's top and the foot stay where they are and nothing is
     torn. The junction itself is left alone: moving it would move the body around the groin
     (tried: faces flipped there; docs/biology-scaling.md, posture). The shifts fade out on a
-    folded leg (:func:`_kept_share`), whose chord says nothing of its line.
+    folded leg (:func:`allorules.measure.limbs.straight_share`), whose chord says nothing of its
+    line (:class:`LimbFolds` gives a folded leg its line back).
     Bodies without limbs come back unchanged.
     """
+    from allorules.measure.limbs import straight_share
+
     moves = []
     for before, after in _limb_pairs(reference, moved):
         moves.append((after.mesh.vertex_index, np.zeros((len(after.mesh.vertex_index), 3))))
-        kept = _kept_share(before)
+        kept = straight_share(before)
         if len(before.sections) < 2 or kept == 0.0:
             continue
         # the centroids from the second section on, relative to the first: the last is the chord
@@ -326,7 +299,7 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         if reach_start == 0.0 or reach_now == 0.0:
             continue
         across_start = line_start - np.outer(line_start @ chord_start / reach_start ** 2, chord_start)   # r_j
-        rotation = _rotation_between(chord_start, chord_now)
+        rotation = rotation_between(chord_start, chord_now)
         if rotation is not None:
             across_start = across_start @ rotation.T                                                  # Q r_j
         target = np.outer(line_now @ chord_now / reach_now ** 2, chord_now) + (reach_now / reach_start) * across_start
@@ -339,3 +312,103 @@ def restore_limb_lines(reference: Body, moved: Body) -> np.ndarray:
         moves[-1] = (moves[-1][0], np.column_stack([np.interp(after.field, before.levels, shifts[:, axis], left=0.0,
                                                               right=0.0) for axis in range(3)]))
     return moved.vertices + _mean_over_limbs(len(moved.vertices), moves)
+
+
+# ---------------------------------------------------------------------------------------------
+# Folded legs keep their folds
+
+
+@dataclass(frozen=True)
+class _Fold:
+    """One folded leg of a step's start body, as :class:`LimbFolds` gives a trial its fold back."""
+
+    weight: float                 # how folded: 1 − straight_share
+    vertex_index: np.ndarray      # body vertex of each part vertex
+    field: np.ndarray             # the limb's field, per part vertex
+    levels: np.ndarray            # each section's level, then the tip's (if beyond the last)
+    loops: JoinedLoops            # the sections' loops, on body vertices
+    tip: int                      # body vertex of the foot's tip; −1: the line ends at the last section
+    line: np.ndarray              # the centroids (then the tip) at the start
+    points: np.ndarray            # the loops' points at the start
+    top: int                      # points of the sections the leg hangs from (its first quarter)
+
+    def moves(self, vertices: np.ndarray) -> np.ndarray:
+        """Per part vertex, the move giving the leg on ``vertices`` its fold (:class:`LimbFolds`)."""
+        points = self.loops.points(vertices)
+        line_now = self.loops.centroids(points)
+        if self.tip >= 0:
+            line_now = np.vstack([line_now, vertices[self.tip]])
+        _, frame, _ = similarity_fit(self.points[:self.top], points[:self.top])           # G
+        own = self.loops.rotations(self.points, points)                                    # R_j
+        turns = Rotation.from_matrix(frame @ own.transpose(0, 2, 1)).as_rotvec()          # G R_jᵀ
+        turns[0] = 0.0                                                 # the first section stays
+        # the line rebuilt: the start's stretches turned by G, scaled to the leg's length now
+        stretches = np.diff(self.line, axis=0)
+        length_now = np.linalg.norm(np.diff(line_now, axis=0), axis=1).sum()
+        stretches = stretches @ frame.T * (length_now / np.linalg.norm(stretches, axis=1).sum())
+        target = line_now[0] + np.vstack([np.zeros(3), np.cumsum(stretches, axis=0)])
+        if self.tip >= 0:          # the foot: its last section's turn, then its toe's
+            last = Rotation.from_rotvec(turns[-1])
+            toe = rotation_between(last.apply(line_now[-1] - line_now[-2]), target[-1] - target[-2])
+            turns = np.vstack([turns, (last if toe is None else Rotation.from_matrix(toe) * last).as_rotvec()])
+
+        def along(values: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.interp(self.field, self.levels, values[:, axis]) for axis in range(3)])
+
+        mine = vertices[self.vertex_index]
+        return along(target) + Rotation.from_rotvec(along(turns)).apply(mine - along(line_now)) - mine
+
+
+@dataclass(frozen=True)
+class LimbFolds:
+    """How to give a moved body's folded legs back the folds they had, a part of each step's
+    transform under ``posture: keep`` (:class:`allorules.solve.transform.StepTransform`).
+
+    Eq. 9 opens or closes a folded leg's fold: the seated horse's hind legs at ×0.5 by 8-16° a
+    step, 35-41° over the run, the hoof that was turned up under the belly laid flat. Per folded
+    leg, weighted by how folded it is (1 − :func:`allorules.measure.limbs.straight_share`): the leg
+    hangs from its top quarter (G, the best rotation of those sections' loops from the start);
+    its centre line (section centroids, then the foot's tip) is rebuilt from the first section
+    down, each stretch the start's turned by G and scaled by the line's change of length, so the
+    line is a similarity of the start's and as long as the step made it; each cross-section moves
+    rigidly onto it, turned by G·R_jᵀ, R_j the best rotation of its own loop (its many points,
+    not the line's tangent: a fold's centroids turn by up to 130° from one section to the next);
+    between sections the move is interpolated along the leg's field, and the first section and
+    what is above it do not move. Girths and the line's length are kept; the turn of the whole
+    leg is :func:`restore_limb_axes`'s.
+    """
+
+    folds: tuple[_Fold, ...]
+
+    @classmethod
+    def of(cls, body: Body) -> "LimbFolds | None":
+        """The folded legs of ``body`` as they are; ``None`` when no leg is folded, even in part."""
+        from allorules.measure.limbs import straight_share
+        from allorules.measure.sections import join_loops
+
+        folds = []
+        for limb in _limbs(body):
+            weight = 1.0 - straight_share(limb)
+            if len(limb.sections) < 2 or weight <= 0.0:
+                continue
+            index = limb.mesh.vertex_index
+            joined = join_loops([section.loop for section in limb.sections])
+            loops = replace(joined, edge_start=index[joined.edge_start], edge_end=index[joined.edge_end])
+            points = loops.points(body.vertices)
+            line, levels = loops.centroids(points), np.asarray(limb.levels, dtype=float)
+            tip = int(np.argmax(limb.field))
+            if limb.field[tip] > levels[-1]:
+                line, levels = np.vstack([line, body.vertices[index[tip]]]), np.append(levels, limb.field[tip])
+                tip = int(index[tip])
+            else:
+                tip = -1
+            # the sections the leg hangs from: its first quarter, at least two
+            hanging = max(2, int(np.searchsorted([section.fraction for section in limb.sections], POSTURE_BLEND)))
+            top = int(loops.starts[hanging]) if hanging < len(limb.sections) else len(points)
+            folds.append(_Fold(weight, index, limb.field, levels, loops, tip, line, points, top))
+        return cls(tuple(folds)) if folds else None
+
+    def apply(self, vertices: np.ndarray) -> np.ndarray:
+        """``vertices`` with each folded leg given its fold back."""
+        return vertices + _mean_over_limbs(len(vertices), [(fold.vertex_index, fold.weight * fold.moves(vertices))
+                                                           for fold in self.folds])

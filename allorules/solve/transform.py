@@ -13,7 +13,7 @@ from allorules.measure.parts import TORSO_REGIONS
 from allorules.rules.model import TRANSFORM_FORMS
 from allorules.solve.held_regions import HeldRegions
 from allorules.solve.limb_thickness import thickening_field
-from allorules.solve.posture import FootContact
+from allorules.solve.posture import FootContact, LimbFolds
 from allorules.spectral.basis import HarmonicBasis, transform
 from allorules.spectral.power_laws import (
     DetailLayer,
@@ -78,6 +78,7 @@ class StepTransform:
     form: str = "per-axis"
     axes: np.ndarray | None = None     # per-axis: rows forward, up, side of the animal (mesh coordinates)
     feet: FootContact | None = None    # posture keep: the feet put back after Eq. 9 (allorules.solve.posture)
+    folds: LimbFolds | None = None     # posture keep: folded legs given their folds back after Eq. 9 (the same)
     detail: DetailLayer | None = None  # solver.detail_cutoff: Eq. 9 on the base, the detail following it
     held: HeldRegions | None = None    # open regions held as a similarity of their input shape (solve/held_regions.py)
     held_scale: float = 1.0            # ... at this isometric factor from the run's input
@@ -114,12 +115,13 @@ class StepTransform:
             trunk_gate = geometric_mean_gate(u[:, 0], sum(trunk)[:, 0])
         limb_field = transform(basis, thickening_field(body)) if limb_thickness else None
         feet = FootContact.of(body) if keep_feet else None
+        folds = LimbFolds.of(body) if keep_feet else None
         detail = None
         if detail_cutoff is not None:
             taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
             detail = DetailLayer(basis, body.vertices, coefficients, taper)
-        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, detail, held,
-                   float(held_scale), trunk_gate, limb_field)
+        return cls(body, basis, tuple(regions), coefficients, u, c, region_us, form, axes, feet, folds, detail,
+                   held, float(held_scale), trunk_gate, limb_field)
 
     @property
     def sized(self) -> tuple[str, ...]:
@@ -145,8 +147,8 @@ class StepTransform:
 
     def vertices(self, variables: np.ndarray) -> np.ndarray:
         """Vertices for the variables (:meth:`unpack`): Eq. 9 with detail kept, the trunk
-        stretched by δ, the limbs thickened by κ; then the feet put back; then the held regions
-        given their input shape, a ruled one at its size × (1 + σ)."""
+        stretched by δ, the limbs thickened by κ; then the folded legs' folds given back and the
+        feet put back; then the held regions given their input shape, a ruled one at its size × (1 + σ)."""
         named = self.unpack(variables)
         scale = named.scale
         u_new = multi_region_power_law(self.u, self.region_us, list(named.alphas), named.alpha0, scale)
@@ -164,6 +166,8 @@ class StepTransform:
             vertices = self.detail.apply(new_coefficients)
         else:
             vertices = apply_to_mesh(self.basis, self.body.vertices, new_coefficients, scale, coefficients=self.coefficients)
+        if self.folds is not None:     # no rule asks for a fold to open or close: the solver measures it kept
+            vertices = self.folds.apply(vertices)
         if self.feet is not None:
             vertices = self.feet.apply(vertices, scale)
         # last: the feet's shift is harmonic over the whole body and would shear a held part
