@@ -61,7 +61,7 @@ def test_identity_and_uniform_scaling(animal, registry):
     centre = (basis.mass @ body.vertices) / basis.mass.sum()
     np.testing.assert_allclose(step.vertices(uniform), centre + 1.25 * (body.vertices - centre), atol=1e-9)
     # with the feet kept (posture keep) both are unchanged: the stance is already the start's
-    standing = StepTransform.of(body, basis, step.regions, keep_feet=True)
+    standing = StepTransform.of(body, basis, step.regions, keep_stance=True)
     assert standing.feet is not None and step.feet is None
     assert np.array_equal(standing.vertices(identity), body.vertices)
     np.testing.assert_allclose(standing.vertices(uniform), centre + 1.25 * (body.vertices - centre), atol=1e-9)

@@ -387,12 +387,13 @@ FEATURE_SHAPE_LIMIT = 0.25       # a small feature's shape change, in units of i
 # since it tries the trunk held without κ first (43e7ba5).
 LEG_GIRTH_SPREAD_LIMIT = 0.8
 
-# A leg turned over the run (limbs.posture_change's tilt: its chord, or a folded leg's centre line)
-# or bent out of any affine image of itself (its shape change, in units of its size) is no longer
-# the same leg. Outputs that look right, seated, lying and standing (docs/method.md, limits that
-# refuse a run), measure up to 19.9° and 0.29; the donkey 385 seated at ×0.5 converged with a
-# folded hind leg swung forward, its hoof crumpled in front of its fore legs, at 90.6° and 0.54.
-# A fold opened or closed at the knee is not caught (docs/benchmarks.md, "Seated by how far they sit").
+# A leg turned over the run (limbs.posture_change's tilt: limbs.limb_turn, its chord's turn, a
+# folded leg's centre line's, blended between) or bent out of any affine image of itself (its shape
+# change, in units of its size) is no longer the same leg. Outputs that look right, seated, lying
+# and standing (docs/method.md, limits that refuse a run), measure up to 19.9° and 0.29; the donkey
+# 385 seated at ×0.5 converged with a folded hind leg swung forward, its hoof crumpled in front of
+# its fore legs, at 90.6° and 0.54. A fold opened or closed at the knee is now kept in each trial
+# (solve/posture.LimbFolds) and reported as the leg's fold_degrees, without a limit.
 LEG_TURN_LIMIT = 30.0
 LEG_SHAPE_LIMIT = 0.4
 

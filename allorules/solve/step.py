@@ -251,7 +251,7 @@ def solve_step(
     # a region held at its rule's size has a size variable instead of its α_j (its shape is held)
     ruled = held.ruled if held is not None else ()
     regions = tuple(region for region in tuple(ruleset.regions) + tuple(extra_regions) if region not in ruled)
-    step = StepTransform.of(body, basis, regions, settings.transform, keep_feet=settings.posture == "keep",
+    step = StepTransform.of(body, basis, regions, settings.transform, keep_stance=settings.posture == "keep",
                             detail_cutoff=settings.detail_cutoff, held=held, held_scale=held_scale,
                             trunk_stretch=trunk_stretch, limb_thickness=limb_thickness)
     energy = StepEnergy(step, ruleset, registry, mass_ratio, measure, on_trial, corrections, constraint_reference,

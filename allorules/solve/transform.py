@@ -87,7 +87,7 @@ class StepTransform:
 
     @classmethod
     def of(cls, body: Body, basis: HarmonicBasis, regions: tuple[str, ...], form: str = "per-axis",
-           keep_feet: bool = False, detail_cutoff: float | None = None, held: HeldRegions | None = None,
+           keep_stance: bool = False, detail_cutoff: float | None = None, held: HeldRegions | None = None,
            held_scale: float = 1.0, trunk_stretch: bool = False, limb_thickness: bool = False) -> "StepTransform":
         if form not in TRANSFORM_FORMS:
             raise ValueError(f"unknown transform form {form!r}; use one of {', '.join(TRANSFORM_FORMS)}")
@@ -114,8 +114,8 @@ class StepTransform:
         if trunk_stretch and trunk:
             trunk_gate = geometric_mean_gate(u[:, 0], sum(trunk)[:, 0])
         limb_field = transform(basis, thickening_field(body)) if limb_thickness else None
-        feet = FootContact.of(body) if keep_feet else None
-        folds = LimbFolds.of(body) if keep_feet else None
+        feet = FootContact.of(body) if keep_stance else None
+        folds = LimbFolds.of(body) if keep_stance else None
         detail = None
         if detail_cutoff is not None:
             taper = detail_taper(basis.eigenvalues, float(basis.mass.sum()), detail_cutoff)
