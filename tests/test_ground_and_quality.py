@@ -22,6 +22,7 @@ from allorules.measure.quality import (
     rule_checks,
     self_intersections,
     surface_roughness,
+    trunk_shape_change,
 )
 from allorules.mesh.geometry import count_flipped_faces, similarity_fit
 
@@ -299,3 +300,51 @@ def test_a_leg_swung_or_crumpled_makes_the_run_look_distorted(generated_horse):
         lines = [line for line in distorted_legs(change) if "changed shape" in line]
         assert (change["forelimbs[0]"]["shape_change"] > LEG_SHAPE_LIMIT) == distorted
         assert len(lines) == int(distorted)
+
+
+def _humped(body, height):
+    """``body`` with a smooth hump on its back over the abdomen: raised along up by ``height`` (in
+    units of the trunk's radius) at the abdomen's middle, falling off along the body like a bell."""
+    up, forward = np.asarray(body.frame.up, float), np.asarray(body.frame.forward, float)
+    trunk = body.region_mask("chest") | body.region_mask("abdomen")
+    abdomen = body.vertices[body.region_mask("abdomen")]
+    centre, spread = abdomen @ forward, np.ptp(abdomen @ forward)
+    radius = np.sqrt(np.sort(np.linalg.eigvalsh(np.cov(body.vertices[trunk].T)))[:2].sum())
+    along = (body.vertices @ forward - centre.mean()) / (0.3 * spread)
+    rise = body.vertices @ up - (body.vertices[trunk] @ up).mean()
+    top = np.clip(rise / np.ptp(body.vertices[trunk] @ up), 0.0, None)      # the back, not the belly
+    bumped = body.vertices + (height * radius * np.exp(-along ** 2) * top * trunk)[:, None] * up
+    return bumped
+
+
+def test_the_trunks_shape_change_sees_a_hump_not_a_stretch(generated_horse):
+    """A trunk made longer, deeper, sheared, turned and moved is the same trunk (0); a hump on the
+    back is measured, in proportion to its height and alike in any units and orientation."""
+    body = generated_horse.body()
+    forward, up = np.asarray(body.frame.forward, float), np.asarray(body.frame.up, float)
+    stretch = np.eye(3) + 0.3 * np.outer(forward, forward) - 0.2 * np.outer(up, up) + 0.1 * np.outer(up, forward)
+    assert trunk_shape_change(body, body.vertices @ stretch.T + 4.0) < 1e-9
+    low, high = trunk_shape_change(body, _humped(body, 0.2)), trunk_shape_change(body, _humped(body, 0.4))
+    assert 0.02 < low < high and high == pytest.approx(2 * low, rel=0.15)     # a tenth of the hump at least
+    turned, rotation = _turn(body.vertices)
+    again = body.with_vertices(turned)
+    assert trunk_shape_change(again, _turn(_humped(body, 0.4))[0]) == pytest.approx(high, rel=1e-6)
+    assert trunk_shape_change(Body(body.vertices, body.faces), body.vertices) is None     # no regions
+
+
+def test_a_humped_trunk_is_warned_of_and_reported(generated_horse):
+    """The run's warning names a hump beyond TRUNK_SHAPE_WARNING and says where to read about it;
+    the quality report carries the figure in its JSON and its terminal line."""
+    from allorules.runs.ruleset_run import TRUNK_SHAPE_WARNING, trunk_shape_warning
+
+    body = generated_horse.body()
+    assert trunk_shape_warning(trunk_shape_change(body, 1.3 * body.vertices)) is None
+    assert trunk_shape_warning(None) is None                                  # no trunk to measure
+    height = 0.4
+    while trunk_shape_change(body, _humped(body, height)) <= TRUNK_SHAPE_WARNING:
+        height *= 1.5
+    line = trunk_shape_warning(trunk_shape_change(body, _humped(body, height)))
+    assert line is not None and "trunk changed shape" in line and "docs/measurements.md" in line
+    report = quality_report(body, _humped(body, height), intersections=False)
+    assert report.as_dict()["trunk_shape_change"] == pytest.approx(trunk_shape_change(body, _humped(body, height)))
+    assert "the trunk" in report.summary()

@@ -22,6 +22,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from allorules.body import Body
+from allorules.mesh.geometry import affine_residuals, vertex_areas
 
 __all__ = [
     "FlippedFaces",
@@ -278,6 +279,44 @@ def leg_stances(before: Body, after: np.ndarray) -> list[LegStance]:
                       values["shape_change"], values["fold_degrees"]) for leg, values in change.items()]
 
 
+# The trunk bent, humped or bulged out of any stretch of itself: the real horse at ×0.5 with its rump
+# raised, the donkey 385 at ×0.5 sagged into a barrel (docs/measurements.md, the trunk's shape).
+TRUNK_SHAPE_QUANTILE = 0.98      # the share of the trunk's surface the reported departure covers
+
+
+def trunk_shape_change(before: Body, after: np.ndarray) -> float | None:
+    """How far the trunk (chest and abdomen) of ``after`` (vertex positions on ``before``'s faces)
+    is from any affine image of the trunk of ``before``, in units of its radius: the distance left
+    beyond the best affine map (:func:`allorules.mesh.geometry.affine_residuals`, area-weighted)
+    that TRUNK_SHAPE_QUANTILE of the trunk's surface stays within, over the trunk's radius after
+    (the RMS distance of its surface from its long axis). 0 for a trunk made longer, deeper or
+    wider; a hump, a sag or a bulge is what it measures. None without a chest or an abdomen."""
+    from allorules.measure.parts import TORSO_REGIONS
+
+    if before.labels is None:
+        return None
+    trunk = np.zeros(len(before.vertices), dtype=bool)
+    for region in TORSO_REGIONS:
+        if before.has_region(region):
+            trunk |= before.region_mask(region)
+    if trunk.sum() < 8:
+        return None
+    weights = vertex_areas(before.vertices, before.faces)[trunk]
+    if not weights.sum() > 0:
+        return None
+    weights = weights / weights.sum()
+    moved = np.asarray(after, dtype=float)[trunk]
+    departure = np.linalg.norm(affine_residuals(before.vertices[trunk], moved, weights), axis=1)
+    spread = moved - weights @ moved
+    variances = np.linalg.eigvalsh((spread * weights[:, None]).T @ spread)
+    radius = float(np.sqrt(max(variances[0] + variances[1], 0.0)))
+    if not radius > 0:
+        return None
+    order = np.argsort(departure)
+    covered = np.searchsorted(np.cumsum(weights[order]), TRUNK_SHAPE_QUANTILE)
+    return float(departure[order[min(covered, len(order) - 1)]] / radius)
+
+
 @dataclass(frozen=True)
 class RuleCheck:
     """A rule over a whole run: target and achieved exponent, and whether it is met."""
@@ -324,6 +363,9 @@ class QualityReport:
     # largest distance a vertex moved for it, over the output's largest extent.
     unfolded: int = 0
     unfold_move: float = 0.0
+    # The trunk's shape change beyond a stretch, in units of its radius (:func:`trunk_shape_change`);
+    # None where the body has no chest or abdomen.
+    trunk_shape: float | None = None
 
     @property
     def worst_feature_change(self) -> float:
@@ -341,6 +383,8 @@ class QualityReport:
             parts.append(f"{self.intersections.pairs if new is None else new} {'new ' if new is not None else ''}"
                          "self-intersecting face pairs")
         parts.append(f"roughness {self.roughness.rms_degrees:.1f}° (0 for uniform scaling)")
+        if self.trunk_shape is not None:
+            parts.append(f"the trunk {100 * self.trunk_shape:.0f}% of its radius out of any stretch")
         if self.features:
             parts.append(f"{len(self.features)} small features changed shape by up to "
                          f"{100 * self.worst_feature_change:.0f}% of their size")
@@ -360,6 +404,7 @@ class QualityReport:
             "roughness": self.roughness.as_dict(),
             "small_features": [change.as_dict() for change in self.features],
             "worst_feature_change": float(self.worst_feature_change),
+            "trunk_shape_change": None if self.trunk_shape is None else float(self.trunk_shape),
             "legs": [leg.as_dict() for leg in self.legs],
             "rules": [rule.as_dict() for rule in self.rules],
         }
@@ -454,4 +499,5 @@ def quality_report(before: Body, after: np.ndarray, *, rules: Iterable | None = 
         features=small_feature_changes(before, after),
         legs=stances,
         rules=rule_checks(rules, tolerance) if rules is not None else [],
+        trunk_shape=trunk_shape_change(before, after),
     )

@@ -146,18 +146,27 @@ def nearest_rotations(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u @ vt, singular
 
 
-def affine_misfit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> float:
-    """How far ``target`` is from any affine image of ``source`` (same points, moved): the weighted
-    RMS residual of the best affine map, min Σ w_i ‖A p_i + t − q_i‖², over the weighted RMS size of
-    ``target`` about its centroid. 0 for any stretch, shear, turn or move (a leg grown longer and
-    thicker by different factors); a part bent or curled is not an affine image of itself."""
+def affine_residuals(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """What is left of ``target`` (the points of ``source``, moved) beyond the best affine image of
+    ``source``: q_i − (A p_i + t), A and t minimising Σ w_i ‖A p_i + t − q_i‖² (weights default 1).
+    Zero for any stretch, shear, turn or move; a bend, hump or bulge is what is left."""
     source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
     weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
-    weights = weights / weights.sum()
-    root = np.sqrt(weights)[:, None]
+    root = np.sqrt(weights)[:, None]       # the map does not depend on the weights' sum
     homogeneous = np.hstack([source, np.ones((len(source), 1))])
     mapping = np.linalg.lstsq(homogeneous * root, target * root, rcond=None)[0]
-    left, spread = target - homogeneous @ mapping, target - weights @ target
+    return target - homogeneous @ mapping
+
+
+def affine_misfit(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """How far ``target`` is from any affine image of ``source`` (same points, moved): the weighted
+    RMS of :func:`affine_residuals` over the weighted RMS size of ``target`` about its centroid. 0
+    for any stretch, shear, turn or move (a leg grown longer and thicker by different factors); a
+    part bent or curled is not an affine image of itself."""
+    target = np.asarray(target, dtype=float)
+    weights = np.ones(len(target)) if weights is None else np.asarray(weights, dtype=float)
+    weights = weights / weights.sum()
+    left, spread = affine_residuals(source, target, weights), target - weights @ target
     size = float(weights @ np.einsum("ij,ij->i", spread, spread))
     return float(np.sqrt(weights @ np.einsum("ij,ij->i", left, left) / size)) if size > 0 else 0.0
 

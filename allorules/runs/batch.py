@@ -542,7 +542,7 @@ def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers:
 
 SUMMARY_COLUMNS = ("job", "mesh", "ruleset", "ratio", "status", "mass_ratio", "stress_ratio", "converged",
                    "worst_rule", "worst_rule_residual", "flipped_faces", "self_intersections", "roughness_degrees",
-                   "worst_feature_change", "warnings", "seconds", "output", "error")
+                   "worst_feature_change", "trunk_shape_change", "warnings", "seconds", "output", "error")
 
 
 def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
@@ -579,7 +579,8 @@ def _quality_cells(quality: dict[str, Any] | None) -> dict[str, Any]:
     return {"flipped_faces": flipped.get("count"),
             "self_intersections": crossings.get("pairs") if new_pairs is None else new_pairs,
             "roughness_degrees": (quality.get("roughness") or {}).get("rms_degrees"),
-            "worst_feature_change": quality.get("worst_feature_change")}
+            "worst_feature_change": quality.get("worst_feature_change"),
+            "trunk_shape_change": quality.get("trunk_shape_change")}
 
 
 def _cell(value: Any) -> str:

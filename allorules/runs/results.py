@@ -187,6 +187,7 @@ class BiologyScalingResult(ScalingResult):
     warnings: list[str] = field(default_factory=list)   # what the output shows that no rule measures
     open_regions: list = field(default_factory=list)    # OpenRegionOutcome per open region and measure
     trunk_length_exponent: float | None = None   # the trunk's length over the run (checked unless a rule measures it)
+    trunk_shape: float | None = None   # the trunk's shape change beyond a stretch (measure.quality.trunk_shape_change)
     missed: tuple[str, ...] = ()     # the kind of each target missed, in order: MISSES
 
     def settle_trunk(self) -> str | None:
