@@ -409,6 +409,29 @@ def test_a_held_run_that_does_no_better_keeps_the_first_and_says_so(animal, regi
         assert "0.240" in kept.warnings[-1] and kept.warnings[-1].endswith("the animal's trunk may look shorter")   # ×2 at 0.24
 
 
+def test_a_held_run_whose_trunk_humps_keeps_the_first(animal, registry):
+    """A held run nearer 1/3 is still not kept where its trunk changed shape beyond a stretch by more
+    than TRUNK_SHAPE_SLACK over the first run's (the real horse at ×0.5: held 0.37, first 0.30, its
+    back sagged and rump raised); within the slack, or where a shape is unmeasured, it is kept."""
+    from allorules.runs import pipeline
+
+    solver = load_ruleset("quadruped", registry).solver
+    body = animal.body()
+
+    def result(trunk, shape):
+        return BiologyScalingResult(body=body, target_mass_ratio=0.5, converged=True, trunk_length_exponent=trunk,
+                                    trunk_shape=shape)
+
+    first_shape = 0.30
+    for held_shape, held_kept in ((0.37, False), (first_shape + 0.9 * pipeline.TRUNK_SHAPE_SLACK, True),
+                                  (0.2, True), (None, True)):
+        kept = pipeline._trunk_nearer_isometric(result(0.276, first_shape), solver,
+                                                lambda _solver: result(0.335, held_shape))
+        assert kept.trunk_length_exponent == (0.335 if held_kept else 0.276), held_shape
+        if not held_kept:
+            assert "the run as first made is kept" in kept.warnings[-1] and "37%" in kept.warnings[-1]
+
+
 def replace_solver(ruleset, **settings):
     from dataclasses import replace
 

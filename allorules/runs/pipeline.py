@@ -573,11 +573,14 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
     """``result``, a converged run, or the run made again with the trunk's length held isometric by
     a soft term (δ its lever, κ as ``solver`` has it) where the trunk strayed beyond
     ``TRUNK_LENGTH_RETRY`` of 1/3 (within ``TRUNK_LENGTH_TOLERANCE``, or the run would not have
-    converged), kept if it converges with its trunk nearer 1/3. Only where ``solver.trunk_hold`` is
+    converged), kept if it converges with its trunk nearer 1/3 and its trunk's shape no further from
+    a stretch of the input's (:func:`_trunk_shape_worse`). Only where ``solver.trunk_hold`` is
     ``when-needed`` and the trunk could be held (δ allowed, per-axis transform); a trunk a rule
     measures is not checked (its exponent is None). Kept or not, the report says what the trunk
     reached: the real horse at ×2 met every rule with its trunk at 0.419 and its chest rising into
-    its neck, where held (0.38) it is the same horse heavier."""
+    its neck, where held (0.38) it is the same horse heavier. At ×0.5 it met them at 0.276, and held
+    (0.335) its back sagged and its rump rose (trunk shape 0.37 of its radius against 0.29): the
+    first run is kept."""
     trunk = result.trunk_length_exponent
     holdable = solver.trunk_hold == "when-needed" and solver.trunk_stretch != "off" and solver.transform == "per-axis"
     if trunk is None or not holdable or abs(trunk - 1.0 / 3.0) <= TRUNK_LENGTH_RETRY:
@@ -586,6 +589,14 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
                 "beyond ±%g); trying again with it held isometric by a soft term", trunk, TRUNK_LENGTH_RETRY)
     held = run_with(replace(solver, trunk_hold="on"))
     nearer = held.trunk_length_exponent is not None and abs(held.trunk_length_exponent - 1 / 3) < abs(trunk - 1 / 3)
+    if held.converged and nearer and _trunk_shape_worse(held, result):
+        result.warnings.append(f"the trunk's length reached exponent {trunk:.3f} (isometric 0.333); held isometric "
+                               f"by a soft term it reached {held.trunk_length_exponent:.3f}, but the trunk then "
+                               f"changed shape by {100 * held.trunk_shape:.0f}% of its radius beyond a stretch "
+                               f"against {100 * result.trunk_shape:.0f}% (a hump, a sag or a bulge): the run as first "
+                               "made is kept")
+        log.warning("%s", result.warnings[-1])
+        return result
     if held.converged and nearer:
         held.warnings.insert(0, f"the run met every target with the trunk's length at exponent {trunk:.3f} "
                                 f"(isometric 0.333); made again with it held isometric by a soft term "
@@ -600,6 +611,20 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
                            + ("longer" if trunk_longer(trunk, result.target_mass_ratio) else "shorter"))
     log.warning("%s", result.warnings[-1])
     return result
+
+
+# A run made again with its trunk held is kept only if its trunk's shape (measure/quality.trunk_shape_change,
+# in units of the trunk's radius) is at most this much further from a stretch of the input's than the
+# first run's: the real horse at ×0.5 held sagged and raised its rump (0.37 against 0.29).
+TRUNK_SHAPE_SLACK = 0.03
+
+
+def _trunk_shape_worse(held: BiologyScalingResult, first: BiologyScalingResult) -> bool:
+    """Whether ``held``'s trunk changed shape beyond a stretch by more than TRUNK_SHAPE_SLACK over
+    ``first``'s (False where either could not be measured)."""
+    if held.trunk_shape is None or first.trunk_shape is None:
+        return False
+    return held.trunk_shape > first.trunk_shape + TRUNK_SHAPE_SLACK
 
 
 def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str, dict[str, str]]]:
