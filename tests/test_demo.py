@@ -86,6 +86,15 @@ def test_demo_reports(demo):
                 assert f"<td>{run.name}</td><td>{leg}</td>" in html
     table = format_rule_table(demo.rule_rows())
     assert "chest-girth" in table and "biology_x0.9" in table
+    # the quality report of every run: in its JSON, and a row of the HTML report's quality table
+    assert "Quality: what an artist would look for" in html
+    for run in demo.runs:
+        quality = json.loads((demo.folder / f"{run.name}.json").read_text())["quality"]
+        assert quality == run.quality and quality["roughness"]["rms_degrees"] >= 0.0
+        trunk = quality["trunk_shape_change"]
+        flipped = (quality.get("written_flipped_faces") or quality["flipped_faces"])["count"]
+        assert f"<td>{run.name}</td><td class=number>{flipped}</td>" in html
+        assert trunk is not None and 0.0 <= trunk < 1.0
 
 
 def test_named_folder_with_files_is_refused(tmp_path):

@@ -68,6 +68,7 @@ class DemoRun:
     vertices: np.ndarray | None = None
     result: dict[str, Any] = field(default_factory=dict)
     rules: list[dict[str, Any]] = field(default_factory=list)
+    quality: dict[str, Any] = field(default_factory=dict)   # the pipeline's quality report (measure/quality.py)
     seconds: float = 0.0
     error: str | None = None
     outcome: Any = field(default=None, repr=False)   # the pipeline's Run (allorules.runs.pipeline)
@@ -299,6 +300,7 @@ def _scale(body, mode: str, ratio: float, modes: int, ruleset, registry) -> Demo
     try:
         run.outcome = pipeline.run(body, scaling, registry=registry, modes=modes, progress=run_progress(run.name))
         result = run.outcome.result
+        run.quality = run.outcome.quality().as_dict()
     except ScalingError as error:
         run.error = str(error)
         result = error.closest if getattr(error, "closest", None) is not None and hasattr(error.closest, "body") else None
@@ -328,7 +330,7 @@ def _write_run(demo: DemoResult, run: DemoRun, body, force: bool) -> None:
     run.report = demo.folder / f"{run.name}.json"
     document = {"run": run.name, "mode": MODE_TITLES[run.mode], "mass_ratio": run.ratio,
                 "mesh": run.mesh.name if run.mesh else None, "seconds": run.seconds, "error": run.error,
-                "result": run.result, "rules": run.rules}
+                "result": run.result, "rules": run.rules, "quality": run.quality}
     write_json(run.report, document)
     demo.files.append((f"{run.name} report", run.report))
 
@@ -356,6 +358,19 @@ def _write_pictures(demo: DemoResult, body) -> None:
         path = demo.folder / name
         render_gallery(grid, path=path, rows=rows, normalise_size=normalise, frames=frames, title=title)
         demo.files.append((name.removesuffix(".png").replace("_", " "), path))
+
+
+def _quality_row(run: DemoRun) -> list:
+    """A run's row of the HTML report's quality table, from its quality report."""
+    quality = run.quality
+    written = quality.get("written_flipped_faces") or quality["flipped_faces"]
+    crossings = quality.get("self_intersections") or {}
+    trunk = quality.get("trunk_shape_change")
+    rules = quality.get("rules") or []
+    return [run.name, written["count"], crossings.get("new_pairs", crossings.get("pairs")),
+            _tenths(quality["roughness"]["rms_degrees"]), round(100 * quality["worst_feature_change"]),
+            "–" if trunk is None else round(100 * trunk),
+            f"{sum(rule['met'] for rule in rules)} of {len(rules)}" if rules else "–"]
 
 
 def _tenths(value: float) -> float:
@@ -409,13 +424,21 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
                     for run in demo.runs for leg, change in run.result.get("posture", {}).items()],
                    note="No rule asks for these; Eq. 9 can meet every rule and still tilt, lift or bow a leg. "
                         "Bow: how far the leg's centre line strays from straight, change over the run.")
+    quality = Table("Quality: what an artist would look for", ["run", "flipped faces", "new self-intersecting pairs",
+                                                               "roughness (°)", "worst small feature (% of its size)",
+                                                               "trunk beyond a stretch (% of its radius)", "rules met"],
+                    [_quality_row(run) for run in demo.runs if run.quality],
+                    note="Measured on the output against the input (docs/measurements.md, docs/method.md): faces turned "
+                         "inside out, face pairs passing through each other that did not before, the RMS change of the "
+                         "dihedral angles (0 for uniform scaling), the largest shape change of a horn, ear, eye or hoof, "
+                         "and how far the trunk is from any stretch of itself (a hump, a sag or a bulge).")
     timings = Table("Steps", ["step", "seconds"], [[text, round(seconds, 1)] for text, seconds in demo.timings])
     notes = [f"{run.name}: {run.error}" for run in demo.runs if run.error]
     notes += [f"{run.name}: {message}" for run in demo.runs for message in run.result.get("messages", [])]
     notes += [f"{run.name}: {warning}" for run in demo.runs for warning in run.result.get("warnings", [])]
     write_html_report(
         html_path, title=f"allorules demo: a generated {demo.settings['preset']}, scaled", summary=summary,
-        tables=[runs, rules, stance, timings], notes=notes,
+        tables=[runs, rules, stance, quality, timings], notes=notes,
         images=[(demo.file("gallery"), "Gallery: columns global / biology-aware, rows minified / original / magnified, "
                  "drawn at the same length (paper Figures 17–18)"),
                 (demo.file("gallery true scale"), "The same at true relative size"),
