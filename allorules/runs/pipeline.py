@@ -579,7 +579,7 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
     measures is not checked (its exponent is None). Kept or not, the report says what the trunk
     reached: the real horse at ×2 met every rule with its trunk at 0.419 and its chest rising into
     its neck, where held (0.38) it is the same horse heavier. At ×0.5 it met them at 0.276, and held
-    (0.335) its back sagged and its rump rose (trunk shape 0.37 of its radius against 0.29): the
+    (0.335) its back sagged and its rump rose (trunk shape 0.37 of its radius against 0.30): the
     first run is kept."""
     trunk = result.trunk_length_exponent
     holdable = solver.trunk_hold == "when-needed" and solver.trunk_stretch != "off" and solver.transform == "per-axis"
@@ -615,7 +615,7 @@ def _trunk_nearer_isometric(result: BiologyScalingResult, solver, run_with) -> B
 
 # A run made again with its trunk held is kept only if its trunk's shape (measure/quality.trunk_shape_change,
 # in units of the trunk's radius) is at most this much further from a stretch of the input's than the
-# first run's: the real horse at ×0.5 held sagged and raised its rump (0.37 against 0.29).
+# first run's: the real horse at ×0.5 held sagged and raised its rump (0.37 against 0.30).
 TRUNK_SHAPE_SLACK = 0.03
 
 

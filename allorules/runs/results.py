@@ -86,9 +86,10 @@ TRUNK_LENGTH_TOLERANCE = 0.1
 
 # A run that converged with its trunk's length further than this from 1/3 (where no rule measures it)
 # is made again with the trunk held isometric by a soft term (solver.trunk_hold: when-needed) and the
-# held run kept if it converges nearer without its trunk humping more (runs/pipeline.py). Within ±0.1 the real horse at ×2 came out
-# at 0.419 with its chest rising into its neck, giraffe-like, where held (0.38) it is the same horse
-# heavier; at ×0.5 the Princeton horse 382's 0.240 is a trunk 7 % longer than isometric's.
+# held run kept if it converges nearer without its trunk humping more (runs/pipeline.py). Within
+# ±0.1 the real horse at ×2 came out at 0.419 with its chest rising into its neck, giraffe-like,
+# where held (0.38) it is the same horse heavier; at ×0.5 the Princeton horse 382's 0.240 is a trunk
+# 7 % longer than isometric's.
 TRUNK_LENGTH_RETRY = 0.05
 
 
