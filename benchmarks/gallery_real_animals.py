@@ -182,7 +182,12 @@ def table_row(name: str, files: RunFiles) -> str:
     return (f"| {name} | x{files.ratio:g} | {'yes' if report['converged'] else '**no**: ' + why} | "
             f"{rule} {error:+.3f} | {report['mass_ratio']:.4f} | {open_text} | "
             f"{'–' if trunk is None else f'{trunk:.3f}'} | {_flipped(quality)} / "
-            f"{quality['roughness']['rms_degrees']:.1f}° / {quality['worst_feature_change'] or 0:.2f} | {seconds} |")
+            f"{quality['roughness']['rms_degrees']:.1f}° / {quality['worst_feature_change'] or 0:.2f} / "
+            f"{_number(quality.get('trunk_shape_change'))} | {seconds} |")
+
+
+def _number(value: float | None) -> str:
+    return "–" if value is None else f"{value:.2f}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -197,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     arguments.out.mkdir(parents=True, exist_ok=True)
     rows = ["| animal | ×R | converged | worst rule (error) | mass ratio | open regions' length exponent | "
-            "trunk length exponent | flipped (as solved → written) / roughness / worst feature | wall |",
+            "trunk length exponent | flipped (as solved → written) / roughness / worst feature / trunk shape | wall |",
             "|---|---|---|---|---|---|---|---|---|"]
     for name in arguments.animals:
         runs = [run_cli(name, ANIMALS[name], ratio, arguments.out, arguments.reuse) for ratio in RATIOS]
