@@ -432,6 +432,42 @@ def test_a_held_run_whose_trunk_humps_keeps_the_first(animal, registry):
             assert "the run as first made is kept" in kept.warnings[-1] and "37%" in kept.warnings[-1]
 
 
+
+def test_a_run_whose_every_try_misses_is_made_again_with_a_basis_every_step(animal, registry, monkeypatch):
+    """Where every try misses a rule (the donkey 385 at ×2, its heart girth), the tries are made
+    again with each step on a basis of its own mesh and kept if they converge; not where the
+    trunk's length is the one miss, nor where the first tries converge."""
+    from allorules.runs import pipeline
+
+    body = animal.body()
+    scaling = pipeline.RulesetScaling(load_ruleset("quadruped", registry), 2.0)
+    calls = []
+
+    def stand_in(outcomes):
+        def tries(_body, _scaling, *, registry, modes, use_cache, progress, basis_every=None):
+            calls.append(basis_every)
+            converged, missed = outcomes[basis_every]
+            return BiologyScalingResult(body=body, target_mass_ratio=2.0, converged=converged, missed=missed,
+                                        messages=[] if converged else [f"missed ({basis_every})"])
+        return tries
+
+    def scale(outcomes):
+        calls.clear()
+        monkeypatch.setattr(pipeline, "_ruleset_tries", stand_in(outcomes))
+        return pipeline._scale_with_ruleset(body, scaling, registry=registry, modes=None, use_cache=False,
+                                            progress=None)
+
+    rule_miss, trunk_miss, met = (False, ("rule",)), (False, ("trunk",)), (True, ())
+    kept = scale({None: rule_miss, 1: met})
+    assert calls == [None, 1] and kept.converged and "a basis of its own mesh" in kept.warnings[0]
+    kept = scale({None: rule_miss, 1: rule_miss})
+    assert calls == [None, 1] and not kept.converged and kept.messages == ["missed (None)"]
+    assert "did not converge either (missed (1))" in kept.warnings[-1]
+    for first in (met, trunk_miss):
+        kept = scale({None: first, 1: met})
+        assert calls == [None] and kept.converged == first[0]
+
+
 def replace_solver(ruleset, **settings):
     from dataclasses import replace
 
