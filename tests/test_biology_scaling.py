@@ -446,6 +446,8 @@ def test_a_run_whose_every_try_misses_is_made_again_with_a_basis_every_step(anim
     def stand_in(outcomes):
         def tries(_body, _scaling, *, registry, modes, use_cache, progress, basis_every=None):
             calls.append(basis_every)
+            if outcomes[basis_every] is None:      # the second pass's first run stops
+                raise ScalingError("step 6 of 8 could not be solved: volume of region 'horns' cannot be determined")
             converged, missed = outcomes[basis_every]
             return BiologyScalingResult(body=body, target_mass_ratio=2.0, converged=converged, missed=missed,
                                         messages=[] if converged else [f"missed ({basis_every})"])
@@ -463,6 +465,8 @@ def test_a_run_whose_every_try_misses_is_made_again_with_a_basis_every_step(anim
     kept = scale({None: rule_miss, 1: rule_miss})
     assert calls == [None, 1] and not kept.converged and kept.messages == ["missed (None)"]
     assert "did not converge either (missed (1))" in kept.warnings[-1]
+    kept = scale({None: rule_miss, 1: None})                   # stopped: one more miss, the first run stands
+    assert calls == [None, 1] and not kept.converged and "could not be solved" in kept.warnings[-1]
     for first in (met, trunk_miss):
         kept = scale({None: first, 1: met})
         assert calls == [None] and kept.converged == first[0]

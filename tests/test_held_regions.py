@@ -252,6 +252,7 @@ def test_a_run_the_shape_hold_cannot_meet_is_made_again_stretched_then_with_soft
                                     open_regions=[outcome])
 
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
+    monkeypatch.setattr(pipeline, "BASIS_EVERY", 1)   # the tries alone (made again with a basis every step: test_biology_scaling)
     quadruped = load_ruleset("quadruped")   # the limbs' thickness off: its own try is tested below
     scaling = pipeline.RulesetScaling(replace(quadruped, solver=replace(quadruped.solver, limb_thickness="off")), 2.0)
     first, held, stretched = ("shape", "when-needed", "when-needed"), ("shape", "when-needed", "on"), ("shape", "on", "off")
@@ -323,6 +324,7 @@ def test_a_run_made_again_that_cannot_solve_a_step_is_one_more_miss_not_the_end(
         raise ScalingError(stopped.messages[0], closest=stopped)
 
     monkeypatch.setattr(pipeline, "scale_with_ruleset", fake)
+    monkeypatch.setattr(pipeline, "BASIS_EVERY", 1)   # the tries alone (made again with a basis every step: test_biology_scaling)
     result = pipeline.scale(body, pipeline.RulesetScaling(load_ruleset("quadruped"), 2.0), registry=pipeline.registry_for(None))
     assert len(calls) > 2 and calls[-1] == "soft"                        # every try was made
     assert not result.converged and result.messages[0].startswith("rule 'foreleg-length'")   # the first run's verdict

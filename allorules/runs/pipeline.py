@@ -473,8 +473,11 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
         return result
     log.warning("every try missed its targets (%s); making them again with each step on a basis of its own mesh "
                 "(slower)", result.messages[0] if result.messages else "a target missed")
-    again = _ruleset_tries(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress,
-                           basis_every=1)
+    try:
+        again = _ruleset_tries(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress,
+                               basis_every=1)
+    except (ScalingError, MeasurementError) as error:    # one more miss, not the end of the command
+        again = _FailedTry(str(error))
     if not again.converged:
         result.warnings.append("made again with each step on a basis of its own mesh, the run did not converge "
                                f"either ({again.messages[0] if again.messages else 'a target missed'})")
