@@ -209,7 +209,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
         from_tail = dijkstra(graph, indices=ends.tail.girdle)
         head_tip = int(np.argmax(np.where(ends.head.region, from_tail, -np.inf)))
     _split_torso(vertices, faces, graph, mass, torso_axis, labels, ends, head_tip)
-    _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, distance)
+    _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_tip, distance)
     _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance)
     plan = body_plan.BodyPlan(
         fore=tuple(fore), hind=tuple(hind), fore_girdle=ends.head.girdle, hind_girdle=ends.tail.girdle,
@@ -639,12 +639,13 @@ def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, a
     labels[neck] = NECK
 
 
-def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, distance) -> None:
+def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_tip, distance) -> None:
     """Ears and horns grow from the head: when the head/neck cut left one of them in the neck (an
     animal with no visible neck, whose bend is the muzzle's), the head is taken back to just
     behind the farthest one's root: every vertex of the head or neck nearer (geodesically) to the
     head tip than that root plus the root's radius, and the features themselves (a horn bent back
-    or down reaches farther from the head tip than its root). The neck keeps what lies behind."""
+    or down reaches farther from the head tip than its root). The neck keeps what lies behind, or,
+    where nothing does, a band at its base."""
     field = distance.get(head_tip)
     if field is None:
         return
@@ -666,8 +667,18 @@ def _head_holds_its_features(vertices, faces, graph, labels, ends, head_tip, dis
     front = np.isin(labels, (HEAD, NECK)) & ((field < reach) | features)
     parts = vertex_components(graph, front)
     head = front & (parts == parts[head_tip])
-    if (labels[head] == NECK).all() or (np.isin(labels, (HEAD, NECK)) & ~head).sum() == 0:
-        return   # nothing of the neck would be left: keep the cut as it was
+    if (labels[head] == NECK).all():
+        return
+    if not np.any((labels == NECK) & ~head):
+        # the features' roots lie behind all of the neck (the pig 383 rearing, its head raised:
+        # its ears reach back past the neck's cut, and the head took every neck vertex, refused
+        # for "no neck"): the neck is the band at the base of what the cut made neck, NECK_BAND of
+        # it by area, the farthest from the head tip, as short as the animal shows it
+        neck = np.flatnonzero(labels == NECK)
+        order = np.argsort(-field[neck])
+        base = np.cumsum(mass[neck][order]) <= NECK_BAND * mass[neck].sum()
+        base[0] = True                     # a neck of a few faces at least, never none
+        head[neck[order[base]]] = False
     labels[head] = HEAD
 
 
