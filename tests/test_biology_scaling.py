@@ -256,6 +256,32 @@ def test_the_trunks_verdict_says_where_the_rules_leave_the_mass(animal, registry
     assert mass_left(load_ruleset("isometric", registry), body, 2.0) == ""
 
 
+
+def test_a_refusal_says_which_mass_rules_strain_the_body_and_how_to_ease_them(animal, registry):
+    """A run refused other than by its trunk, whose mass rules leave the rest of the body far from
+    the ratio (a cartoon's big head and belly at ×0.5: its chest and legs ×0.35, and the chest
+    folds), says so and names each mass rule to hold isometric; the trunk's refusal keeps its own
+    settling, a converged run none."""
+    from allorules.runs.results import RuleOutcome
+    from allorules.runs.ruleset_run import mass_budget
+
+    body = animal.body()
+    budget = mass_budget(load_ruleset("quadruped", registry), body, 0.5)
+    assert budget is not None and budget.startswith("the rules leave the chest, forelimbs and hindlimbs ×")
+    rules = [RuleOutcome("head-mass", "head", "mass", 0.70, 1.0, 0.6, 0.5),
+             RuleOutcome("abdomen-mass", "abdomen", "mass", 0.74, 1.0, 0.6, 0.74),
+             RuleOutcome("chest-girth", "chest", "girth", 0.365, 1.0, 0.8, 0.365)]
+    refused = BiologyScalingResult(body, 0.5, ruleset="quadruped", rules=rules, missed=("rule",), mass_budget=budget)
+    settle = refused.settle()
+    assert settle.startswith(budget) and settle == refused.as_dict()["settle"]
+    assert "--rule head-mass=1 --rule abdomen-mass=1" in settle
+    assert "chest-girth" not in settle
+    converged = BiologyScalingResult(body, 0.5, ruleset="quadruped", rules=rules, converged=True, mass_budget=budget)
+    assert converged.settle() is None
+    trunk = BiologyScalingResult(body, 0.5, ruleset="quadruped", rules=rules, missed=("trunk",),
+                                 trunk_length_exponent=0.5)
+    assert trunk.settle() == trunk.settle_trunk() and "trunk-length" in trunk.settle()
+
 @pytest.mark.heavy
 def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, monkeypatch, tmp_path):
     """Without the trunk's stretch Eq. 9 can still draw the trunk out: the bull 386 at x2 met every
@@ -565,6 +591,8 @@ def test_unreachable_target_is_reported_not_hidden(animal, registry, tmp_path):
     assert abs(outcomes["foreleg-length"].error) > EXPONENT_TOLERANCE
     assert abs(outcomes["foreleg-length-again"].error) > EXPONENT_TOLERANCE
     assert result.as_dict()["converged"] is False
+    # at ×1.1 the head's and abdomen's rules leave the rest within 5 % of isometric: nothing to ease
+    assert result.mass_budget is None and result.settle() is None and result.as_dict()["settle"] is None
 
 
 def test_missing_regions_are_refused(animal, registry):

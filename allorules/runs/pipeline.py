@@ -750,7 +750,7 @@ class Run:
         what = f"ruleset {self.scaling.ruleset.name!r}" if hasattr(self.scaling, "ruleset") else "the global run"
         first = self.result.messages[0] if self.result.messages else "a target missed"
         ratio = getattr(self.scaling, "mass_ratio", None)
-        settle = self.result.settle_trunk() if isinstance(self.result, BiologyScalingResult) else None
+        settle = self.result.settle() if isinstance(self.result, BiologyScalingResult) else None
         return (f"{what} did not reach its targets" + (f" at mass ratio {ratio:g}" if ratio else "") + f": {first}"
                 + (f"; {settle}" if settle else ""))
 

@@ -190,6 +190,7 @@ class BiologyScalingResult(ScalingResult):
     trunk_length_exponent: float | None = None   # the trunk's length over the run (checked unless a rule measures it)
     trunk_shape: float | None = None   # the trunk's shape change beyond a stretch (measure.quality.trunk_shape_change)
     missed: tuple[str, ...] = ()     # the kind of each target missed, in order: MISSES
+    mass_budget: str | None = None   # a run that missed (not by its trunk): where the rules leave the mass (ruleset_run.mass_budget)
 
     def settle_trunk(self) -> str | None:
         """How to settle a run whose one miss is the trunk's length (every rule, the mass and every
@@ -206,6 +207,23 @@ class BiologyScalingResult(ScalingResult):
                 f"give its trunk a rule (a ruleset with extends: {self.ruleset} and the rule {{id: trunk-length, "
                 f"measure: trunk-length, exponent: {exponent:g}}}, docs/rulesets.md)")
 
+    def settle(self) -> str | None:
+        """How to settle a run that missed: :meth:`settle_trunk` where the trunk's length is the one
+        miss; else, where the rules leave the regions they do not fix by mass far from the body's
+        ratio (:attr:`mass_budget`), the mass rules held isometric instead. A head or an abdomen
+        drawn larger than a real animal's (a cartoon) takes its share at M^0.70 or M^0.74 and leaves
+        the chest and legs ×0.35 at ×0.5 (the real shared animals: ×0.39-0.46), and the chest folds:
+        a generated big-headed dog and a neckless pig at ×0.5 were refused after every try, and with
+        ``--rule head-mass=1 --rule abdomen-mass=1`` converge in one (trunk shape 0.18 and 0.06).
+        None for a converged run or one the budget does not explain."""
+        trunk = self.settle_trunk()
+        if trunk or self.converged or not self.mass_budget:
+            return trunk
+        held = " ".join(f"--rule {rule.id}=1" for rule in self.rules if rule.measure == "mass" and rule.region is not None)
+        return (f"{self.mass_budget}; if its head or abdomen is drawn larger than a real animal's (a cartoon), "
+                f"their rules ask the rest of the body for that: hold their mass isometric ({held}) or give a "
+                f"ruleset of your own (docs/rulesets.md), and look at the picture")
+
     def details(self) -> dict:
         return {
             "ruleset": self.ruleset,
@@ -218,7 +236,7 @@ class BiologyScalingResult(ScalingResult):
             "open_regions": [outcome.as_dict() for outcome in self.open_regions],
             "trunk_length_exponent": self.trunk_length_exponent,
             "missed": list(self.missed),
-            "settle": self.settle_trunk(),
+            "settle": self.settle(),
             "tolerances": {"exponent": EXPONENT_TOLERANCE, "mass": MASS_TOLERANCE, "constraint": CONSTRAINT_TOLERANCE,
                            "trunk_length": TRUNK_LENGTH_TOLERANCE, "trunk_length_retry": TRUNK_LENGTH_RETRY},
         }

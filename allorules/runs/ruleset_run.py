@@ -428,26 +428,33 @@ def mass_left(ruleset, body: Body, ratio: float) -> str:
     a cartoon dog whose head is 24 % of its body leaves its chest and legs ×2.47 at R = 2, and its
     trunk grew at 0.665; the generated horse leaves them ×2.30.
     """
+    budget = mass_budget(ruleset, body, ratio)
+    return "" if budget is None else f" ({budget})"
+
+
+def mass_budget(ruleset, body: Body, ratio: float) -> str | None:
+    """:func:`mass_left`'s clause without its brackets, or None where the rest takes R within
+    MASS_LEFT_NOTE (or nothing can be said: no rule fixes a region's mass, or nothing is left)."""
     try:
         total = body_mass(body)
         shares = {name: region_mass(body, name) / total for name in body.region_names if body.has_region(name)}
     except AllorulesError:
-        return ""
+        return None
     fixed = {rule.region: rule.exponent for rule in ruleset.rules if rule.measure == "mass" and rule.region in shares}
     measured = {rule.region for rule in ruleset.rules}
     open_regions = [name for name in shares if name not in measured]
     rest = [name for name in shares if name in measured and name not in fixed]
     if not fixed or not rest or sum(shares[name] for name in rest) <= 0:
-        return ""
+        return None
     taken = sum(shares[name] * ratio ** exponent for name, exponent in fixed.items()) + sum(shares[name] * ratio for name in open_regions)
     left = (ratio - taken) / sum(shares[name] for name in rest)
     if left > 0 and abs(left / ratio - 1.0) < MASS_LEFT_NOTE:
-        return ""
+        return None
     why = "; ".join(f"the {name}, {100 * shares[name]:.0f} % of the body, at M^{exponent:.2f}" for name, exponent in fixed.items())
     if open_regions:
         why += f"; the {' and '.join(open_regions)} isometric"
     names = ", ".join(rest[:-1]) + " and " + rest[-1] if len(rest) > 1 else rest[0]
-    return f" (the rules leave the {names} ×{left:.2f} in mass where the body changes ×{ratio:g}: {why})"
+    return f"the rules leave the {names} ×{left:.2f} in mass where the body changes ×{ratio:g}: {why}"
 
 
 def _capped(ruleset):
@@ -590,6 +597,8 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
+    if messages and "trunk" not in result.missed:   # the trunk's verdict says it already
+        result.mass_budget = mass_budget(ruleset, initial, ratio)
     result.messages.extend(messages)
     if messages:
         result.messages.append(
