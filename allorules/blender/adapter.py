@@ -14,6 +14,7 @@ takes them back (``regions``) instead of labelling the animal itself.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from typing import Any, Sequence
 
@@ -49,11 +50,21 @@ _PANEL_TERMS = (("--up DIR and --forward DIR (the body's feet-to-back and tail-t
                  f"paint the vertex groups it lacks ({GROUP_PREFIX}<name>), or set Regions to Detect"))
 
 
+# A refusal's mass rules to hold isometric (BiologyScalingResult.settle) as the command line's
+# overrides; the panel has no overrides, only a ruleset file of one's own.
+_HELD_RULES = re.compile(r"hold their mass isometric \(((?:--rule [\w-]+=1 ?)+)\) or give a ruleset of your own")
+
+
 def in_panel_terms(message: str) -> str:
-    """``message`` with the command line's --up/--forward named as the panel's settings."""
+    """``message`` with the command line's --up/--forward named as the panel's settings, and its
+    --rule overrides as a ruleset file (the panel's Ruleset, File…)."""
     for option, setting in _PANEL_TERMS:
         message = message.replace(option, setting)
-    return message
+    return _HELD_RULES.sub(
+        lambda held: "hold their mass isometric: a ruleset file of your own (Ruleset, File…) with extends: the "
+                     "ruleset and " + ", ".join(f"{{id: {rule}, exponent: 1}}" for rule in re.findall(r"--rule ([\w-]+)=1",
+                                                                                            held.group(1))),
+        message)
 
 
 def check_settings(*, ruleset: str, mass_ratio: float, modes: int | None, posture: str | None,
