@@ -669,16 +669,21 @@ def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_ti
     head = front & (parts == parts[head_tip])
     if (labels[head] == NECK).all():
         return
-    if not np.any((labels == NECK) & ~head):
-        # the features' roots lie behind all of the neck (the pig 383 rearing, its head raised:
-        # its ears reach back past the neck's cut, and the head took every neck vertex, refused
-        # for "no neck"): the neck is the band at the base of what the cut made neck, NECK_BAND of
-        # it by area, the farthest from the head tip, as short as the animal shows it
-        neck = np.flatnonzero(labels == NECK)
+    neck = np.flatnonzero(labels == NECK)
+    if mass[(labels == NECK) & ~head].sum() < NECK_BAND * mass[neck].sum():
+        # the features' roots lie behind (almost) all of the neck (the pig 383 rearing, its head
+        # raised: its ears reach back past the neck's cut, and the head took every neck vertex, or
+        # all but one on its working mesh; refused for "no neck", or a neck with no face that the
+        # run could neither measure nor hold): the neck is the band at the base of what the cut
+        # made neck, NECK_BAND of it by area, the farthest from the head tip, and the ring of neck
+        # vertices next to it (a band one vertex wide has no face of its own)
         order = np.argsort(-field[neck])
         base = np.cumsum(mass[neck][order]) <= NECK_BAND * mass[neck].sum()
-        base[0] = True                     # a neck of a few faces at least, never none
-        head[neck[order[base]]] = False
+        base[0] = True
+        band = np.zeros(len(labels), dtype=bool)
+        band[neck[order[base]]] = True
+        band |= (np.asarray(graph @ band.astype(float)).ravel() > 0) & (labels == NECK)
+        head &= ~band
     labels[head] = HEAD
 
 
