@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
@@ -11,9 +12,11 @@ from rotations import random_rotation
 
 from allorules.body import Body, Frame
 from allorules.errors import SegmentationError
+from allorules.mesh.geometry import vertex_areas
 from allorules.mesh.quadruped import generate_quadruped
 from allorules.mesh.quadruped_poses import POSES, Pose
 from allorules.mesh.repose import repose
+from allorules.mesh.working import make_working_mesh
 from allorules.segment import label_check
 from allorules.segment.labeller import label_quadruped
 
@@ -136,8 +139,6 @@ KEPT = 0.7
 @pytest.mark.slow
 @pytest.mark.parametrize("name, pose", HEAD_TURNED)
 def test_a_turned_head_keeps_its_head_and_neck(name, pose):
-    from allorules.mesh.geometry import vertex_areas
-
     prepared, standing, _, posed = _posed_real(name, pose)
     labelled = label_quadruped(posed)
     area = vertex_areas(prepared.vertices, prepared.faces)
@@ -145,6 +146,28 @@ def test_a_turned_head_keeps_its_head_and_neck(name, pose):
         before = standing.region_mask(region)
         kept = area[before & labelled.region_mask(region)].sum() / area[before].sum()
         assert kept >= KEPT, f"{region}: {kept:.2f} of it labelled {region} when posed"
+
+
+class PosedHead(NamedTuple):
+    """A shared animal posed and labelled afresh, its head and neck against its standing labels."""
+
+    prepared: Any
+    posed: Body
+    labelled: Body
+    kept: float          # share of the standing head (by area) labelled head when posed
+    grown: float         # the posed head's area over the standing head's
+    neck: float          # the posed neck's area
+    neck_standing: float
+
+
+def _posed_head(name: str, pose: str) -> PosedHead:
+    prepared, standing, _, posed = _posed_real(name, pose)
+    labelled = label_quadruped(posed)
+    area = vertex_areas(prepared.vertices, prepared.faces)
+    head_before, head_after = standing.region_mask("head"), labelled.region_mask("head")
+    return PosedHead(prepared, posed, labelled, area[head_before & head_after].sum() / area[head_before].sum(),
+                     area[head_after].sum() / area[head_before].sum(), area[labelled.region_mask("neck")].sum(),
+                     area[standing.region_mask("neck")].sum())
 
 
 @pytest.mark.shared_meshes
@@ -155,16 +178,9 @@ def test_a_grazing_pig_s_head_is_its_head_not_its_snout():
     nose still on the head, so the hand marks passed it). Now the rings decide its head, with a
     short neck: 0.97 of the standing head labelled head, the head 0.20 of the surface for 0.14
     standing (the rings' head takes the standing neck and a little of the chest)."""
-    from allorules.mesh.geometry import vertex_areas
-
-    prepared, standing, _, posed = _posed_real("383.off", "graze")
-    labelled = label_quadruped(posed)
-    area = vertex_areas(prepared.vertices, prepared.faces)
-    head_before, head_after = standing.region_mask("head"), labelled.region_mask("head")
-    assert area[head_before & head_after].sum() / area[head_before].sum() >= 0.9
-    assert area[head_after].sum() <= 1.5 * area[head_before].sum()
-    assert 0.0 < area[labelled.region_mask("neck")].sum() <= 2.0 * area[standing.region_mask("neck")].sum()
-
+    pig = _posed_head("383.off", "graze")
+    assert pig.kept >= 0.9 and pig.grown <= 1.5
+    assert 0.0 < pig.neck <= 2.0 * pig.neck_standing
 
 
 @pytest.mark.shared_meshes
@@ -176,21 +192,14 @@ def test_a_rearing_pig_keeps_a_neck_behind_its_ears():
     could neither measure nor hold). Now the neck is the band at the base of the cut's neck and
     the ring next to it: 0.98 of the standing head labelled head, the head 1.4 × the standing one
     (it takes the standing neck), a neck of 0.7 % of the surface (4.8 % standing), 143 faces."""
-    from allorules.mesh.geometry import vertex_areas
-
-    prepared, standing, _, posed = _posed_real("383.off", "rear")
-    labelled = label_quadruped(posed)
-    area = vertex_areas(prepared.vertices, prepared.faces)
-    head_before, head_after = standing.region_mask("head"), labelled.region_mask("head")
-    assert area[head_before & head_after].sum() / area[head_before].sum() >= 0.9
-    assert area[head_after].sum() <= 1.6 * area[head_before].sum()
-    assert 0.0 < area[labelled.region_mask("neck")].sum() <= area[standing.region_mask("neck")].sum()
-    assert labelled.region_mask("neck")[prepared.faces].all(axis=1).sum() >= 20   # faces to measure it by
-    from allorules.mesh.working import make_working_mesh
-
-    working = make_working_mesh(posed.vertices, posed.faces)          # as a run labels it: 26 faces
+    pig = _posed_head("383.off", "rear")
+    assert pig.kept >= 0.9 and pig.grown <= 1.6
+    assert 0.0 < pig.neck <= pig.neck_standing
+    assert pig.labelled.region_mask("neck")[pig.prepared.faces].all(axis=1).sum() >= 20   # faces to measure it by
+    working = make_working_mesh(pig.posed.vertices, pig.posed.faces)          # as a run labels it: 26 faces
     small = label_quadruped(Body(working.vertices, working.faces))
     assert small.region_mask("neck")[working.faces].all(axis=1).sum() >= 10
+
 
 # Feet in doubt are settled by the body's directions, as the refusal says: the donkey 385 lying,
 # its head down, has its ears mirrored across its midplane like a pair of feet (0.16 of cost from
