@@ -259,11 +259,13 @@ def test_step_does_not_depend_on_units_or_place(animal, registry):
 def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else(animal, registry):
     """κ (solver.limb_thickness) moves only the limbs, across their centre lines: at κ = 0.2 a leg's
     girth at two thirds of its length grows by about 20 % of Eq. 9's while its length stays, the
-    torso, the head and the feet stay put, and κ = 0 is Eq. 9 bit for bit; a thicker leg carries
+    torso and the head stay put, each foot grows with its leg as a similarity (the same shape), and
+    κ = 0 is Eq. 9 bit for bit; a thicker leg carries
     the same mass at a lower peak stress, the lever the stress constraint needs."""
     from allorules.measure.limbs import limb_sections
     from allorules.measure.parts import carry_fields
-    from allorules.solve.limb_thickness import thickening_field
+    from allorules.mesh.geometry import similarity_fit
+    from allorules.solve.limb_thickness import FOOT, thickening_field
 
     body, plain, step, variables = _with_one_more_variable(animal, registry, limb_thickness=True)
     assert step.limb_field is not None
@@ -277,11 +279,21 @@ def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else
     size = np.ptp(body.vertices, axis=0).max()
     torso = body.region_mask("chest") | body.region_mask("abdomen") | body.region_mask("head")
     assert np.median(moved[torso]) < 2e-3 * size < np.median(moved[limbs])
-    feet = np.zeros(len(body.vertices), dtype=bool)          # the last tenth of every leg
-    for region in ("forelimbs", "hindlimbs"):
+    feet = 0
+    for region in ("forelimbs", "hindlimbs"):                # the last tenth of every leg: its foot
         for leg in limb_sections(body, region):
-            feet[leg.mesh.vertex_index[leg.offsets_across()[1] > 0.92]] = True
-    assert feet.any() and np.median(moved[feet]) < 0.2 * np.median(moved[limbs & ~feet])
+            foot = leg.mesh.vertex_index[leg.offsets_across()[1] >= FOOT[1]]
+            if len(foot) < 4:
+                continue                                      # a hind foot of this coarse horse: 2 vertices
+            feet += 1
+            p, q = before.vertices[foot], after.vertices[foot]
+            scale, rotation, shift = similarity_fit(p, q, np.full(len(foot), 1.0 / len(foot)))
+            size = np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1)))
+            misfit = np.sqrt(np.mean(np.sum((q - (scale * p @ rotation.T + shift)) ** 2, axis=1))) / (scale * size)
+            # it grows with the leg, keeping its shape (on this 300-mode basis of a 1,000-vertex horse
+            # the field is blurred: 1.10 and 5 % of its size; kept still, as before, it grew 1.03)
+            assert scale > 1.07 and misfit < 0.06, (region, scale, misfit)
+    assert feet >= 2
     for region in ("forelimbs", "hindlimbs"):
         for leg_before, leg_after in zip(limb_sections(before, region), limb_sections(after, region)):
             girth = leg_after.section_at(0.66).girth / leg_before.section_at(0.66).girth
