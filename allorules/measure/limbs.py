@@ -329,10 +329,11 @@ def girth_spread(before: Limb, after: Limb) -> float:
     """How unevenly a limb's girth changed along it: exp(P90 − P10) − 1 of log(girth after / girth
     before) over its cross-sections (0 when every section changed alike, as under any similarity;
     0.5: somewhere along the leg the girth grew 50 % more than elsewhere). The limbs' thickening
-    faded in below the junction and out above the foot swells the leg between when it is large:
-    the Princeton pig 383 at ×0.5 with κ up to 0.3 a step came out with club legs at 1.3–1.45, the
-    real horse at ×2 with broad hooves at 0.4–0.65, where most outputs that look right measure
-    0.01–0.38 (Eq. 9's leg α alone can do it too: the bull 386 at ×2, 1.2–1.6, without κ).
+    faded in below the junction swells the leg below it when it is large: the Princeton pig 383 at
+    ×0.5 with κ up to 0.3 a step came out with club legs at 1.3–1.45, the real horse at ×2 with
+    broad hooves at 0.4–0.65, the cow 381 at ×2 at 0.65–0.75 with its hooves kept at Eq. 9's size
+    (0.19–0.31 since they grow with the leg), where most outputs that look right measure 0.01–0.38
+    (Eq. 9's leg α alone can do it too: the bull 386 at ×2, 1.2–1.6, without κ).
     The 10th and 90th percentiles, not the extremes: a single section at the junction's rim or the
     foot moves with the rim's or the hoof's shape."""
     count = min(len(before.sections), len(after.sections))
