@@ -815,3 +815,26 @@ def test_low_poly_dog_scales_standing(shared_meshes, registry):
     result = scale_with_ruleset(body, load_ruleset("quadruped", registry), 2.0, registry=registry, use_cache=False)
     assert result.converged, result.messages
     assert max(abs(change["foot_lift"]) for change in result.posture.values()) < 0.05
+
+
+@pytest.mark.heavy
+@pytest.mark.shared_meshes
+def test_the_cows_hooves_grow_with_its_thickened_legs(shared_meshes, tmp_path):
+    """The Princeton cow 381 at ×2, as a user runs it: its legs need the limbs' thickness (κ), and
+    with the foot kept at Eq. 9's size its hooves came out ×0.83–0.92 (smaller than the input's,
+    on an animal twice as heavy) under legs swollen unevenly along them (girth spread 0.65–0.75).
+    Each foot now grows with its leg as a whole: larger than isometric, its shape kept, the legs
+    thickened evenly down to it."""
+    from allorules.cli import main
+
+    out, report = tmp_path / "cow-x2.obj", tmp_path / "cow-x2.json"
+    assert main(["scale", str(shared_meshes / "psb-fourleg" / "381.off"), "--ruleset", "quadruped",
+                 "--mass-ratio", "2", "-o", str(out), "--report", str(report)]) == 0
+    data = json.loads(report.read_text())
+    assert data["converged"] and any(step["limb_thickness"] for step in data["step_details"])
+    hooves = [feature for feature in data["quality"]["small_features"]
+              if feature["kind"] == "end" and feature["region"] in ("forelimbs", "hindlimbs")]
+    assert len(hooves) == 4
+    for hoof in hooves:
+        assert hoof["scale"] > 2 ** (1 / 3) and hoof["shape_change"] < 0.15, hoof
+    assert max(leg["girth_spread"] for leg in data["quality"]["legs"]) < 0.45
