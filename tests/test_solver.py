@@ -260,8 +260,8 @@ def test_the_limbs_thickness_thickens_every_leg_across_its_line_and_nothing_else
     """κ (solver.limb_thickness) moves only the limbs, across their centre lines: at κ = 0.2 a leg's
     girth at two thirds of its length grows by about 20 % of Eq. 9's while its length stays, the
     torso and the head stay put, each foot grows with its leg as a similarity (the same shape), and
-    κ = 0 is Eq. 9 bit for bit; a thicker leg carries
-    the same mass at a lower peak stress, the lever the stress constraint needs."""
+    κ = 0 is Eq. 9 bit for bit; a thicker leg carries the same mass at a lower peak stress, the
+    lever the stress constraint needs."""
     from allorules.measure.limbs import limb_sections
     from allorules.measure.parts import carry_fields
     from allorules.mesh.geometry import similarity_fit
