@@ -69,8 +69,7 @@ def test_scale_arrays_gives_every_blender_vertex_a_place_on_the_same_ground(stan
     assert np.ptp(new[:, 0]) / np.ptp(vertices[:, 0]) == pytest.approx(1.2 ** (1 / 3), rel=0.05)
 
 
-
-def test_a_refusals_mass_rules_are_named_as_a_ruleset_file_in_the_panel():
+def test_a_refusals_mass_rules_are_named_as_a_ruleset_file_in_the_panel(tmp_path):
     """The panel has no --rule overrides: a refusal's advice to hold the mass rules isometric names
     the ruleset file that does it, which loads with those rules at exponent 1."""
     from allorules.body import Body
@@ -86,11 +85,12 @@ def test_a_refusals_mass_rules_are_named_as_a_ruleset_file_in_the_panel():
     assert "--rule" not in said and "(Ruleset, File…) with extends: the ruleset and " in said
     held = re.search(r"with extends: the ruleset and (.*) \(docs", said).group(1)
     assert held == "{id: head-mass, exponent: 1}, {id: abdomen-mass, exponent: 1}"
-    path = Path(tempfile.mkdtemp()) / "cartoon.yaml"
+    path = tmp_path / "cartoon.yaml"
     path.write_text("name: cartoon\ndescription: as the refusal says\nextends: quadruped\nrules:\n"
                     + "".join(f"  - {rule}\n" for rule in re.findall(r"\{[^}]*\}", held)), encoding="utf-8")
     exponents = {rule.id: rule.exponent for rule in load_ruleset(str(path)).rules}
     assert exponents["head-mass"] == exponents["abdomen-mass"] == 1.0
+
 
 def test_a_sitting_animal_refused_for_its_feet_is_scaled_once_forward_is_set():
     """The generated horse sitting, as Blender holds it (+Z up, facing -Y): with the panel's Up
