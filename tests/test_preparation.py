@@ -92,6 +92,26 @@ def test_duplicate_and_degenerate_faces_are_dropped():
     assert any("duplicate faces" in repair for repair in prepared.repairs)
 
 
+def test_stray_parts_are_carried_along_when_faces_were_dropped_too():
+    # A held-out dog (an OFF file with two degenerate faces and a stray part) failed with an index
+    # error: the parts were taken from the input's faces with a mask over the faces kept.
+    body = sphere(3)
+    eye = sphere(1, radius=0.05)
+    eye.apply_translation([0.0, 0.0, 1.2])
+    both = trimesh.util.concatenate([body, eye])
+    fin_tip = len(both.vertices)
+    vertices = np.vstack([both.vertices, [[0.0, 0.0, 1.0 + 1e-3]]])
+    a, b = body.faces[0][:2]
+    faces = np.vstack([both.faces, [[0, 0, 1]], [[a, b, fin_tip]], [[a, b, fin_tip]]])
+    prepared = prepare_mesh(trimesh.Trimesh(vertices, faces, process=False))
+    assert any("degenerate" in repair for repair in prepared.repairs)
+    positions = prepared.source_positions(prepared.vertices * 2.0)
+    eye_vertices = np.arange(len(body.vertices), len(both.vertices))
+    assert np.allclose(np.ptp(positions[eye_vertices], axis=0), np.ptp(eye.vertices, axis=0))
+    # The vertex left only on dropped faces moves with the body instead of staying behind as a spike.
+    assert np.linalg.norm(positions[fin_tip]) > 1.9
+
+
 def test_non_manifold_fin_is_removed():
     mesh = sphere()
     a, b = mesh.faces[0][:2]

@@ -206,12 +206,13 @@ def prepare_mesh(mesh) -> PreparedMesh:
     if loops:
         repairs.append(f"found {loops} holes; they are capped for volume measurement only, never in the output")
 
-    # Map input vertices to body vertices; detached parts follow their nearest body vertex. (A large
+    # Map input vertices to body vertices; every other vertex a face of the input uses (a detached
+    # part's, or one left only on a face dropped above) follows its nearest body vertex. (A large
     # body keeps its own vertices: runs work on a working mesh made from it, allorules.mesh.working.)
     source = mesh
     detached: list[DetachedPart] = []
     source_vertex_index = renumber[merged_index]
-    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)[~in_body_face]]) if (~in_body_face).any() else np.zeros(0, np.int64)
+    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)])
     other = other[renumber[other] < 0]
     if len(other):
         detached_source = np.flatnonzero(np.isin(merged_index, other))
