@@ -838,3 +838,20 @@ def test_the_cows_hooves_grow_with_its_thickened_legs(shared_meshes, tmp_path):
     for hoof in hooves:
         assert hoof["scale"] > 2 ** (1 / 3) and hoof["shape_change"] < 0.15, hoof
     assert max(leg["girth_spread"] for leg in data["quality"]["legs"]) < 0.45
+
+
+@pytest.mark.slow
+def test_a_run_whose_trunk_humps_beyond_the_limit_misses(animal, registry, monkeypatch):
+    """A run that met every rule is not converged where its trunk changed shape beyond
+    TRUNK_SHAPE_LIMIT (Spot at ×0.5 met every rule as a short, tall sack): the miss is a distortion,
+    named in the run's messages, and the rules' budget is there to settle it."""
+    from allorules.runs import ruleset_run
+
+    ruleset = load_ruleset("quadruped", registry)
+    met = _run(animal, registry, ruleset, 2.0)
+    assert met.converged and met.trunk_shape < 0.4
+    monkeypatch.setattr(ruleset_run, "trunk_shape_change", lambda before, after: 0.45)
+    humped = _run(animal, registry, ruleset, 2.0)
+    assert not humped.converged and humped.missed == ("distorted",)
+    assert any("the trunk changed shape by 45%" in message and "limit 40%" in message for message in humped.messages)
+    assert all(abs(rule.error) <= EXPONENT_TOLERANCE for rule in humped.rules)

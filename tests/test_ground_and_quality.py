@@ -332,6 +332,26 @@ def test_the_trunks_shape_change_sees_a_hump_not_a_stretch(generated_horse):
     assert trunk_shape_change(Body(body.vertices, body.faces), body.vertices) is None     # no regions
 
 
+def test_a_trunk_humped_beyond_the_limit_is_a_distortion(generated_horse):
+    """Beyond TRUNK_SHAPE_LIMIT of its radius a trunk's hump is one line of the run's distortions
+    (which make it miss, as a lumpy surface does); a stretch, a hump within the limit or a body
+    without a trunk to measure is none."""
+    from allorules.measure.quality import TRUNK_SHAPE_LIMIT, distorted_trunk
+
+    body = generated_horse.body()
+    assert distorted_trunk(trunk_shape_change(body, 1.3 * body.vertices)) == []
+    assert distorted_trunk(None) == []
+    height = 0.4
+    while trunk_shape_change(body, _humped(body, height)) <= TRUNK_SHAPE_LIMIT:
+        height *= 1.2
+    over = trunk_shape_change(body, _humped(body, height))
+    within = trunk_shape_change(body, _humped(body, height / 1.2))
+    assert within <= TRUNK_SHAPE_LIMIT < over
+    assert distorted_trunk(within) == []
+    (line,) = distorted_trunk(over)
+    assert f"{100 * over:.0f}%" in line and f"limit {100 * TRUNK_SHAPE_LIMIT:.0f}%" in line
+
+
 def test_a_humped_trunk_is_warned_of_and_reported(generated_horse):
     """The run's warning names a hump beyond TRUNK_SHAPE_WARNING and says where to read about it;
     the quality report carries the figure in its JSON and its terminal line."""

@@ -56,6 +56,7 @@ from allorules.measure.mass import body_mass, region_mass
 from allorules.measure.parts import TORSO_REGIONS, carry_choices
 from allorules.measure.quality import (
     distorted_legs,
+    distorted_trunk,
     distortions,
     flipped_faces,
     trunk_shape_change,
@@ -593,7 +594,8 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
         misses.extend(("trunk", message) for message in _check_trunk_length(result, initial, final, ruleset, stretched))
         # rules met by a body that no longer looks like the same animal are not met (METHOD §10)
         misses.extend(("distorted", f"the output looks distorted ({problem})")
-                      for problem in distortions(initial, final.vertices) + distorted_legs(result.posture or {}))
+                      for problem in distortions(initial, final.vertices) + distorted_trunk(result.trunk_shape)
+                      + distorted_legs(result.posture or {}))
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
