@@ -8,7 +8,7 @@ Run: .venv/bin/python benchmarks/bench_resolution.py [--mass-ratio R] [--animals
 
 Animals: ``generated`` = ``generate_quadruped("horse", vertices=N)`` (one implicit shape,
 marching cubes at each size); ``horse`` (or any NAME of shared/meshes/NAME.obj, or ``psb-NNN`` for
-shared/meshes/psb-fourleg/NNN.off) decimated (fast-simplification) to a smaller size, as it is,
+shared/meshes/psb-fourleg/NNN.off, or a mesh file's path) decimated (fast-simplification) to a smaller size, as it is,
 and Loop-subdivided (trimesh; split at edge midpoints instead where Loop moves the mesh's extent
 by over 1 %: spikes at an open boundary) 1-3 times then decimated to a larger one (12k, 48k, 200k); size 0
 is the shared mesh as it is. ``--million``: the horse at 1,000,000 vertices (Loop ×3, midpoint ×1, decimated),
@@ -54,10 +54,18 @@ def _decimate(vertices, faces, count):
 
 
 def source(animal: str) -> Path:
-    """The shared mesh an animal's variants are made from."""
+    """The shared mesh an animal's variants are made from (an animal given as a mesh file's path:
+    that file, a mesh from outside shared/)."""
+    if Path(animal).suffix and Path(animal).is_file():
+        return Path(animal).resolve()
     if animal.startswith("psb-"):
         return MESHES / "psb-fourleg" / f"{animal[4:]}.off"
     return MESHES / f"{animal}.obj"
+
+
+def _name(animal: str) -> str:
+    """The animal's name in file names: a path's stem, or the name itself."""
+    return Path(animal).stem if Path(animal).suffix else animal
 
 
 def make_variant(animal: str, size: int) -> Path:
@@ -65,7 +73,7 @@ def make_variant(animal: str, size: int) -> Path:
     import trimesh
 
     WORK.mkdir(parents=True, exist_ok=True)
-    path = WORK / f"{animal}-{size}.npz"
+    path = WORK / f"{_name(animal)}-{size}.npz"
     if path.exists():
         return path
     if animal == "generated":
@@ -248,7 +256,7 @@ def main() -> None:
     def launch(animal: str, size: int, direct: bool = False, full: bool = True) -> dict | None:
         variant = make_variant(animal, size)
         kind = "direct" if direct else "working"
-        output = WORK / f"run-{animal}-{size}-{kind}-{arguments.mass_ratio:g}.json"
+        output = WORK / f"run-{_name(animal)}-{size}-{kind}-{arguments.mass_ratio:g}.json"
         command = [sys.executable, __file__, "--one", str(variant), str(output), str(arguments.mass_ratio),
                    str(arguments.working_vertices or "-"), str(arguments.modes or "-"), "1" if direct else "0",
                    "1" if full and not arguments.no_full_measure else "0"]
