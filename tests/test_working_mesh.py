@@ -55,6 +55,36 @@ def test_a_fine_body_is_decimated_first_then_remeshed() -> None:
     assert working.quality["min_angle_median"] > 50
 
 
+def test_a_body_pinched_at_a_vertex_is_remeshed_with_the_pinch_split(monkeypatch) -> None:
+    """Two sheets of one surface touching at a vertex (a held-out cow's pinch) crashed the remesher
+    with a segmentation fault once decimated; it is given the surface with that vertex split, and
+    the working mesh is the same surface."""
+    import gpytoolbox
+    import igl
+
+    from allorules.mesh.geometry import face_areas
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)                 # 10,242 vertices
+    vertices, faces = np.array(sphere.vertices), np.array(sphere.faces)
+    north, south = int(np.argmax(vertices[:, 2])), int(np.argmin(vertices[:, 2]))
+    vertices[[north, south]] = 0.0                                      # both poles pulled to the centre
+    faces = np.where(faces == south, north, faces)                      # and made one vertex: a pinch
+    assert not igl.is_vertex_manifold(faces)[north]
+    given = []
+    remesh = gpytoolbox.remesh_botsch
+
+    def watched(v, f, **options):
+        given.append(bool(igl.is_vertex_manifold(np.asarray(f, dtype=np.int64)).all()))
+        return remesh(v, f, **options)
+
+    monkeypatch.setattr(gpytoolbox, "remesh_botsch", watched)
+    working = make_working_mesh(vertices, faces, 2000)
+    assert given and all(given)
+    assert abs(len(working.vertices) / 2000 - 1) < 0.1
+    area = face_areas(vertices, faces).sum()
+    assert face_areas(working.vertices, working.faces).sum() == pytest.approx(area, rel=0.03)
+
+
 def test_an_open_body_with_holes_keeps_its_holes() -> None:
     mesh = trimesh.creation.icosphere(subdivisions=5)
     keep = ~((mesh.triangles_center[:, 2] > 0.9) | (np.abs(mesh.triangles_center[:, 0]) > 0.95))  # three holes

@@ -236,9 +236,15 @@ def _remesh(vertices: np.ndarray, faces: np.ndarray, target: int) -> tuple[np.nd
     with ``target`` vertices on the same area: a closed mesh of n vertices has about 2n faces of
     area √3/4 h², so h = √(2 A / (√3 n)). One correction of h by the count it gave."""
     import gpytoolbox
+    import igl
 
     from allorules.mesh.geometry import face_areas
 
+    # remesh_botsch can die with a segmentation fault, not an error, on a vertex where two sheets
+    # of the surface touch (a held-out cow's pinched vertex, split twice at its edges' midpoints and
+    # decimated): it is given the surface with such vertices split apart (libigl), which it remeshes
+    if not igl.is_vertex_manifold(faces).all():
+        vertices, faces, _ = igl.split_nonmanifold(vertices, faces)
     area = float(face_areas(vertices, faces).sum())
     length = math.sqrt(2.0 * area / (math.sqrt(3.0) * target))
     faces32 = np.ascontiguousarray(faces, dtype=np.int32)
