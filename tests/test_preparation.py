@@ -93,8 +93,8 @@ def test_duplicate_and_degenerate_faces_are_dropped():
 
 
 def test_stray_parts_are_carried_along_when_faces_were_dropped_too():
-    # A held-out dog (an OFF file with two degenerate faces and a stray part) failed with an index
-    # error: the parts were taken from the input's faces with a mask over the faces kept.
+    # A held-out dog (an OFF file: two faces dropped on non-manifold edges, and stray parts) failed
+    # with an index error: the parts were taken from the input's faces with a mask over the faces kept.
     body = sphere(3)
     eye = sphere(1, radius=0.05)
     eye.apply_translation([0.0, 0.0, 1.2])
