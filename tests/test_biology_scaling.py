@@ -17,7 +17,11 @@ import pytest
 
 from allorules.body import Body
 from allorules.errors import MeasurementError, ScalingError, SegmentationError
-from allorules.measure.quality import trunk_shape_change
+from allorules.measure.quality import (
+    posture_warnings,
+    trunk_shape_change,
+    trunk_shape_warning,
+)
 from allorules.mesh.geometry import count_flipped_faces
 from allorules.plugins.registry import registry_for
 from allorules.rules.overrides import override_exponents
@@ -29,11 +33,7 @@ from allorules.runs.results import (
     MASS_TOLERANCE,
     BiologyScalingResult,
 )
-from allorules.runs.ruleset_run import (
-    posture_warnings,
-    scale_with_ruleset,
-    trunk_shape_warning,
-)
+from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.runs.steps import step_ratios
 from allorules.solve.energy import cached_measure
 

@@ -355,7 +355,7 @@ def test_a_trunk_humped_beyond_the_limit_is_a_distortion(generated_horse):
 def test_a_humped_trunk_is_warned_of_and_reported(generated_horse):
     """The run's warning names a hump beyond TRUNK_SHAPE_WARNING and says where to read about it;
     the quality report carries the figure in its JSON and its terminal line."""
-    from allorules.runs.ruleset_run import TRUNK_SHAPE_WARNING, trunk_shape_warning
+    from allorules.measure.quality import TRUNK_SHAPE_WARNING, trunk_shape_warning
 
     body = generated_horse.body()
     assert trunk_shape_warning(trunk_shape_change(body, 1.3 * body.vertices)) is None

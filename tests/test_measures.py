@@ -688,7 +688,7 @@ def test_posture_change_measures_a_bowing_leg():
 
 def test_a_run_that_bows_a_leg_says_so():
     from allorules.measure.limbs import posture_change
-    from allorules.runs.ruleset_run import posture_warnings
+    from allorules.measure.quality import posture_warnings
 
     body = legs_body()
     for amplitude, warned in ((0.1, False), (0.3, True)):      # bows of 3 % and 10 % of the leg
@@ -708,7 +708,7 @@ def test_a_leg_bent_at_a_knee_changes_shape_where_one_grown_longer_and_thicker_d
     below its cut (an affine image of itself, as a leg scaled by its rules is) measures 0; bent by
     60° at a knee half way down it measures well beyond the warning, and the run says so."""
     from allorules.measure.limbs import posture_change
-    from allorules.runs.ruleset_run import POSTURE_SHAPE_WARNING, posture_warnings
+    from allorules.measure.quality import POSTURE_SHAPE_WARNING, posture_warnings
 
     body = legs_body()
     x, z = body.vertices[:, 0], body.vertices[:, 2]

@@ -40,10 +40,15 @@ __all__ = [
     "quality_report",
     "distortions",
     "distorted_legs",
+    "distorted_trunk",
+    "posture_warnings",
+    "trunk_shape_warning",
     "FEATURE_SHAPE_LIMIT",
     "LEG_SHAPE_LIMIT",
     "LEG_TURN_LIMIT",
     "ROUGHNESS_SHARE_LIMIT",
+    "TRUNK_SHAPE_LIMIT",
+    "TRUNK_SHAPE_WARNING",
 ]
 
 
@@ -449,6 +454,62 @@ LEG_GIRTH_SPREAD_LIMIT = 0.8
 # (solve/posture.LimbFolds) and reported as the leg's fold_degrees, without a limit.
 LEG_TURN_LIMIT = 30.0
 LEG_SHAPE_LIMIT = 0.4
+
+
+# Warned of, not refused: the levels from which a run's warnings name a change no rule asks for
+# (the limits above refuse a run beyond theirs).
+POSTURE_TILT_WARNING = 3.0      # degrees a leg may lean over a run before the user is warned
+POSTURE_BEND_WARNING = 0.05     # share of its length a leg may bow more than it did before the user is warned
+# How far a leg may move from any affine image of itself (limbs.posture_change "shape_change", clear of
+# its junction, in units of its size) before the user is warned: legs that look right measure 0.03-0.08
+# (the generated horse galloping at ×2 and ×0.5, the grazing pig 383 at ×2); the generated horse's
+# folded hind legs, sitting, curled at ×2 (0.12) and crumpled into its belly at ×0.5 (0.14), the
+# sitting dog's at ×0.5 0.11, while the bow's measure saw no more than 4 % in the horse's.
+POSTURE_SHAPE_WARNING = 0.10
+# The trunk's shape change beyond a stretch (measure/quality.trunk_shape_change, in units of its
+# radius) that a run warns of: outputs that look right measured 0.13-0.23 (the gallery's standing
+# giraffe, lion, cow and bull at both sizes, the seated horse 387 and dog, the lying horse before
+# b4089ea), those with a raised rump, a hump, a barrel or swollen shoulders 0.29-0.47 (the real horse
+# and the donkey 385 at ×0.5, the lying horse at ×0.5, the seated cow 381 and lion at ×2;
+# docs/measurements.md, the trunk's shape).
+TRUNK_SHAPE_WARNING = 0.28
+
+
+def posture_warnings(posture: dict[str, dict[str, float]]) -> list[str]:
+    """What a run's ``posture`` (per leg: ``tilt_degrees``, ``foot_lift``, ``bend``) should warn
+    about: legs leaning more than ``POSTURE_TILT_WARNING`` degrees, a leg bowing by more than
+    ``POSTURE_BEND_WARNING`` of its length beyond the input's bow, a leg bent, curled or crumpled
+    (``shape_change`` beyond ``POSTURE_SHAPE_WARNING``). Empty when all is well."""
+    if not posture:
+        return []
+    warnings = []
+    tilt = max(change["tilt_degrees"] for change in posture.values())
+    lift = max(abs(change["foot_lift"]) for change in posture.values())
+    if tilt > POSTURE_TILT_WARNING:
+        warnings.append(f"the legs lean by up to {tilt:.1f}° and a foot moved {100 * lift:.1f}% of a leg's length off "
+                        "the ground; every rule may still be met (see docs/biology-scaling.md, posture)")
+    leg, change = max(posture.items(), key=lambda item: item[1]["bend"])
+    if change["bend"] > POSTURE_BEND_WARNING:
+        warnings.append(f"{leg} bows by {100 * change['bend']:.1f}% of its length more than in the input: Eq. 9 "
+                        "changed the leg's own shape, which no rule measures; look at the output "
+                        "(docs/biology-scaling.md, posture)")
+    leg, change = max(posture.items(), key=lambda item: item[1].get("shape_change", 0.0))
+    if change.get("shape_change", 0.0) > POSTURE_SHAPE_WARNING:
+        warnings.append(f"{leg} changed shape by {100 * change['shape_change']:.0f}% of its size beyond a stretch "
+                        "(bent, curled or pressed into the body, as folded legs can be): Eq. 9 changed the leg's "
+                        "own shape, which no rule measures; look at the output (docs/biology-scaling.md, posture)")
+    return warnings
+
+
+def trunk_shape_warning(change: float | None) -> str | None:
+    """The warning for a trunk bent, humped or bulged beyond ``TRUNK_SHAPE_WARNING`` of its radius
+    out of any stretch of itself (``change``: :func:`allorules.measure.quality.trunk_shape_change`),
+    else None."""
+    if change is None or change <= TRUNK_SHAPE_WARNING:
+        return None
+    return (f"the trunk changed shape by {100 * change:.0f}% of its radius beyond a stretch (a hump, a sag or a "
+            f"bulge, which no rule asks for; warned from {100 * TRUNK_SHAPE_WARNING:.0f}%): look at the output "
+            "(docs/measurements.md, the trunk's shape)")
 
 
 def distorted_legs(posture: Mapping[str, Mapping[str, float]]) -> list[str]:

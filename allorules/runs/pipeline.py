@@ -44,7 +44,12 @@ from allorules.measure.frame import regions_frame
 from allorules.measure.girth import heart_girth_tape
 from allorules.measure.ground import GroundError, ground_contact, place_on_ground
 from allorules.measure.mass import body_mass
-from allorules.measure.quality import QualityReport, flipped_faces, quality_report
+from allorules.measure.quality import (
+    TRUNK_SHAPE_WARNING,
+    QualityReport,
+    flipped_faces,
+    quality_report,
+)
 from allorules.measure.stress import SectionChoice, peak_stress
 from allorules.mesh.geometry import count_flipped_faces, vertex_areas
 from allorules.mesh.repair import PreparedMesh, prepare_mesh
@@ -74,7 +79,6 @@ from allorules.runs.results import (
 )
 from allorules.runs.ruleset_run import (
     BASIS_EVERY,
-    TRUNK_SHAPE_WARNING,
     scale_with_ruleset,
 )
 from allorules.segment.labels_io import (
