@@ -77,6 +77,7 @@ MIRROR_RING = 0.6              # twins unlike in prominence: the thinner one's r
 MIRROR_ACROSS = 0.9            # at least this share of the other's, and they lie straight across the body (cosine)
 MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
 MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of its reach (in space) is its end's, no feature
+LEG_FEATURE_REACH = 0.3        # a mirror pair on a "leg" this share of its length or more from its "foot" is a head's
 
 # How far an animal sits, from the tilt of the chord between its girdles: level (standing) up to
 # the first angle, sitting from the second, smoothstep between (:func:`seated_share`). Shared
@@ -381,6 +382,34 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
     ground = ground_plane(vertices[feet], vertices, centroid, up)
     return FeetChoice((int(feet[0]), int(feet[1])), (int(feet[2]), int(feet[3])), float(margin), ground,
                       dict(best.terms))
+
+
+def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, vertices, faces) -> int | None:
+    """The foot whose leg carries a head's features, or None: two tips on that leg alike in
+    prominence (or, twins unlike in prominence, in girth: :func:`_read_end`'s mirror pairs) and in
+    their distance from its foot, well apart, and LEG_FEATURE_REACH of the leg's
+    length or more from its foot (ears or horns, a head's length behind its nose, where toes lie
+    within a paw's width of the foot's tip). A cat leaping with its fore legs stretched out, one
+    beside its nose, had its nose taken for a foot, its head for that foot's leg, and its tail for
+    its head: its ears were 0.87 of that "leg" from its "foot"."""
+    distance = extremities.distance
+    persistence = {int(t): float(p) for t, p in zip(extremities.vertices, extremities.persistence)}
+    for foot in (int(f) for f in feet):
+        on_leg = legs == foot
+        length = float(distance[foot][on_leg].max(initial=0.0))
+        tips = [int(t) for t in extremities.vertices if on_leg[t] and int(t) != foot
+                and persistence[int(t)] >= MIRROR_PERSISTENCE
+                and distance[foot][t] >= LEG_FEATURE_REACH * length]
+        for t1, t2 in itertools.combinations(tips, 2):
+            reach = max(distance[foot][t1], distance[foot][t2])
+            if (abs(distance[foot][t1] - distance[foot][t2]) >= MIRROR_REACH * reach
+                    or distance[t1][t2] <= MIRROR_SPACING * reach):
+                continue
+            rings = [_ring_length(vertices, faces, distance[t], 0.1 * distance[foot][t]) for t in (t1, t2)]
+            if (min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2])
+                    or min(rings) > MIRROR_RING * max(rings)):
+                return foot
+    return None
 
 
 # ---------------------------------------------------------------- ends: head or tail

@@ -170,6 +170,10 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     ground = up if up is not None else choice.ground
     legs, axes, leg_tops = _follow_legs(vertices, faces, graph, mass, choice, distance, ground)
     _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair), body_plan.settle_feet(up, forward))
+    if body_plan.head_taken_for_a_leg(extremities, legs, feet, vertices, faces) is not None:
+        raise SegmentationError(
+            "a leg found carries a pair of ears or horns: a head was taken for a foot (legs stretched out beside "
+            f"it, as in a leap?), so the four feet are not certain; {body_plan.BY_HAND}")
     top = body_plan.leg_top_distances(graph, legs, feet)
     first, second = body_plan.read_ends(extremities, top, graph, legs, leg_tops, choice.fore_pair, choice.other_pair,
                                         vertices, faces, mass, ground)
