@@ -279,6 +279,30 @@ def test_a_head_taken_for_a_leg_is_told_by_its_horns(preset, horn_length, horn_r
     assert body_plan.head_taken_for_a_leg(extremities, legs, feet, plain.vertices, plain.faces) is None
 
 
+@pytest.mark.parametrize("preset,horn_length,horn_radius", [("dog", 0.25, 0.05), ("horse", 0.3, 0.06)])
+def test_ears_or_horns_in_the_chest_are_found(preset, horn_length, horn_radius):
+    """Chest and abdomen carry no pair of ears or horns: a real elephant told its forward direction
+    had its trunk labelled head and its head, ears and all, chest. On the generated horned head:
+    labelled right, none in the torso; the head given to the chest, its horns found there (twins
+    unlike in prominence, alike in girth); a hornless head given to the chest, nothing to find."""
+    from allorules.segment.labeller import vertex_graph
+
+    for animal, horned in ((generate_quadruped(preset, 3000, horn_length=horn_length, horn_radius=horn_radius), True),
+                           (generate_quadruped(preset, 3000), False)):
+        extremities = body_plan.read_extremities(vertex_graph(animal.vertices, animal.faces),
+                                                 vertex_areas(animal.vertices, animal.faces))
+        names = np.array(animal.region_names)[animal.labels]
+        torso = (names == "chest") | (names == "abdomen")
+        assert body_plan.features_in(extremities, torso, animal.vertices, animal.faces) is None
+        found = body_plan.features_in(extremities, torso | (names == "head"), animal.vertices, animal.faces)
+        if horned:
+            horns = horn_vertices(animal)
+            assert found is not None and {bool(np.isin(tip, horns[0])) for tip in found} == {True, False}
+            assert all(np.isin(tip, np.concatenate(horns)) for tip in found)
+        else:
+            assert found is None
+
+
 LEAP = Pose(swing={"fore-left": 80, "fore-right": 70, "hind-left": -80, "hind-right": -70}, neck=-30, head=-20, tail=10)
 
 

@@ -393,7 +393,7 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
     beside its nose, had its nose taken for a foot, its head for that foot's leg, and its tail for
     its head: its ears were 0.87 of that "leg" from its "foot"."""
     distance = extremities.distance
-    persistence = {int(t): float(p) for t, p in zip(extremities.vertices, extremities.persistence)}
+    persistence = dict(zip(extremities.vertices.tolist(), extremities.persistence.tolist()))
     for foot in (int(f) for f in feet):
         on_leg = legs == foot
         length = float(distance[foot][on_leg].max(initial=0.0))
@@ -405,10 +405,35 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
             if (abs(distance[foot][t1] - distance[foot][t2]) >= MIRROR_REACH * reach
                     or distance[t1][t2] <= MIRROR_SPACING * reach):
                 continue
-            rings = [_ring_length(vertices, faces, distance[t], 0.1 * distance[foot][t]) for t in (t1, t2)]
-            if (min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2])
-                    or min(rings) > MIRROR_RING * max(rings)):
+            if _shaped_alike(extremities, t1, t2, vertices, faces, 0.1 * reach):
                 return foot
+    return None
+
+
+def _shaped_alike(extremities: Extremities, t1: int, t2: int, vertices, faces, level: float) -> bool:
+    """Two tips alike as twins are: in prominence, or else (the younger of two twins keeps only what
+    it stands above the saddle between them: a horned dog's 0.86 and 0.41) in girth, their rings
+    ``level`` from each tip within MIRROR_RING of each other."""
+    persistence = dict(zip(extremities.vertices.tolist(), extremities.persistence.tolist()))
+    if min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2]):
+        return True
+    rings = [_ring_length(vertices, faces, extremities.distance[t], level) for t in (t1, t2)]
+    return min(rings) > MIRROR_RING * max(rings)
+
+
+def features_in(extremities: Extremities, region: np.ndarray, vertices, faces) -> tuple[int, int] | None:
+    """A pair of prominent tips (candidates, as feet are) inside ``region``, alike in AGD and shaped
+    alike (:func:`_shaped_alike`, rings a tenth of their distance apart from each tip), as a head's
+    ears or horns are, or None. Chest and abdomen carry none: the real elephant
+    (a public mesh, its big ears hanging back over its shoulders, behind its fore girdle) told its
+    forward direction had its trunk labelled head and its head, ears and all, chest (the ears'
+    prominence 0.285 and 0.263, their AGD 0.55 and 0.54)."""
+    tips = [int(extremities.vertices[k]) for k in extremities.candidates if region[int(extremities.vertices[k])]]
+    agd = dict(zip(extremities.vertices.tolist(), extremities.agd.tolist()))
+    for t1, t2 in itertools.combinations(tips, 2):
+        if abs(agd[t1] - agd[t2]) < MIRROR_AGD and _shaped_alike(
+                extremities, t1, t2, vertices, faces, 0.1 * extremities.distance[t1][t2]):
+            return t1, t2
     return None
 
 

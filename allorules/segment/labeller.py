@@ -215,6 +215,10 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     _split_torso(vertices, faces, graph, mass, torso_axis, labels, ends, head_tip)
     _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_tip, distance)
     _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance)
+    if body_plan.features_in(extremities, (labels == CHEST) | (labels == ABDOMEN), vertices, faces) is not None:
+        raise SegmentationError(
+            "a pair of ears or horns was labelled chest or abdomen: the head was not found whole (a trunk or a "
+            f"muzzle taken for it?); give the regions with {body_plan.BY_HAND}")
     plan = body_plan.BodyPlan(
         fore=tuple(fore), hind=tuple(hind), fore_girdle=ends.head.girdle, hind_girdle=ends.tail.girdle,
         head_tip=head_tip, tail_tip=ends.tail.main_tip, head_features=tuple(t for pair in ends.head.mirror_pairs for t in pair),
