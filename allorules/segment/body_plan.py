@@ -64,6 +64,7 @@ SIDES = 1.0                    # per pair whose feet are not mirrored across the
 ABOVE = 0.25                   # a foot this share of the body's height above its centre costs one (directions given)
 FLAT_LEG = 2.5                 # ring flatness (long / short extent) above this is not a leg's
 GROUND_BONUS = 1.0             # four feet on a common supporting plane (standing), legs reaching straight down to it
+GROUND_LEG_RATIO = 0.6         # ... in full where the shortest leg is at least this share of the longest
 LEG_DOWN = 0.25                # cosine of a leg's direction to straight down below which its foot adds nothing
 FEET_MARGIN = 0.25             # cost margin below which the feet are not certain
 
@@ -204,10 +205,15 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
         # its horns reaching forward along it (0.24 of straight down; the feet of every shared
         # animal reach down at 0.56-1.0, a generated dog lying 0.33-0.7, one rearing on its hind
         # feet 0.92-0.94 with its forefeet folded 0.01-0.25).
+        # Feet standing on one ground end legs of a kind: the bonus counts in full only where the
+        # shortest leg is GROUND_LEG_RATIO of the longest or more (the shared animals' legs, posed or
+        # not, 0.62-0.98, the camel's fused fore legs 0.43): a horse leaping, horns and fore feet all
+        # reaching forward to one plane, had them for its feet, the horns' "legs" 0.35 of the others.
         terms["ground"] = 0.0
         if ground is not None:
             down = -(tips.pointing[list(four)] @ ground)
-            terms["ground"] = -GROUND_BONUS * float(np.mean(np.clip((down - LEG_DOWN) / (1.0 - LEG_DOWN), 0.0, 1.0)))
+            alike = min(1.0, (min(legs) / max(legs)) / GROUND_LEG_RATIO)
+            terms["ground"] = -GROUND_BONUS * alike * float(np.mean(np.clip((down - LEG_DOWN) / (1.0 - LEG_DOWN), 0.0, 1.0)))
         if side is not None:
             # Given the body's own frame (up alone may be the world's: Blender gives +Z, and a rearing
             # animal's fore feet rise above its centre there), feet are below the body's centre in any
