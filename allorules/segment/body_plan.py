@@ -391,11 +391,10 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
 
 
 def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, vertices, faces) -> int | None:
-    """The foot whose leg carries a head's features, or None: two tips on that leg alike in
-    prominence (or, twins unlike in prominence, in girth: :func:`_read_end`'s mirror pairs) and in
-    their distance from its foot, well apart, and LEG_FEATURE_REACH of the leg's
-    length or more from its foot (ears or horns, a head's length behind its nose, where toes lie
-    within a paw's width of the foot's tip). A cat leaping with its fore legs stretched out, one
+    """The foot whose leg carries a head's features, or None: two tips on that leg shaped alike
+    (:func:`_shaped_alike`), alike in their distance from its foot, well apart, and
+    LEG_FEATURE_REACH of the leg's length or more from its foot (ears or horns, a head's length
+    behind its nose, where toes lie within a paw's width of the foot's tip). A cat leaping with its fore legs stretched out, one
     beside its nose, had its nose taken for a foot, its head for that foot's leg, and its tail for
     its head: its ears were 0.87 of that "leg" from its "foot"."""
     distance = extremities.distance
