@@ -173,7 +173,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     if body_plan.head_taken_for_a_leg(extremities, legs, feet, vertices, faces) is not None:
         raise SegmentationError(
             "a leg found carries a pair of ears or horns: a head was taken for a foot (legs stretched out beside "
-            f"it, as in a leap?), so the four feet are not certain; {body_plan.BY_HAND}")
+            f"it, as in a leap?), so the four feet are not certain; give the regions with {body_plan.BY_HAND}")
     top = body_plan.leg_top_distances(graph, legs, feet)
     first, second = body_plan.read_ends(extremities, top, graph, legs, leg_tops, choice.fore_pair, choice.other_pair,
                                         vertices, faces, mass, ground)
