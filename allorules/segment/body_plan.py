@@ -346,6 +346,29 @@ class FeetChoice:
     terms: dict[str, float]
 
 
+PAIR_LEFT_OUT_LIKENESS = 0.8   # the two tips of a pair left out this alike in prominence, or more, are twins
+
+
+def _pair_left_out(tips: _Tips, d, pair, other) -> tuple[float, float, float] | None:
+    """A pair of tips no foot, twins (alike in prominence within PAIR_LEFT_OUT_LIKENESS, in AGD
+    within MIRROR_AGD, no farther apart than 1.5 times the feet of a pair) and each more prominent
+    than the least prominent foot chosen, as (their prominences, that foot's), or None. A pair that
+    stands out more than a pair of feet is a pair of legs: a dog leaping with horns, horns and fore
+    feet reaching forward to one plane, had them for its four feet and its hind legs (0.77 and
+    0.77, the horn 0.34) for its head's ears. Ears and horns stand out less than legs, or are twins
+    unlike in prominence (a horned dog's 0.86 and 0.41); a nose and a tail tip are a body apart."""
+    chosen = [int(x) for x in pair + other]
+    least = float(min(tips.persistence[chosen]))
+    spread = 1.5 * max(d[pair[0]][pair[1]], d[other[0]][other[1]])
+    rest = [k for k in range(len(tips.vertices)) if k not in chosen]
+    for a, b in itertools.combinations(rest, 2):
+        low, high = sorted((float(tips.persistence[a]), float(tips.persistence[b])))
+        if (low > PAIR_LEFT_OUT_LIKENESS * high and low > least and abs(tips.agd[a] - tips.agd[b]) < MIRROR_AGD
+                and d[a][b] <= spread):
+            return float(tips.persistence[a]), float(tips.persistence[b]), least
+    return None
+
+
 def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forward=None) -> FeetChoice:
     """The two pairs of feet (see the module's step 2), or a SegmentationError saying why not.
     ``up`` and ``forward`` are the body's directions where the user gave them."""
@@ -384,6 +407,12 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
             f"cannot tell which four extremities are the feet (two guesses within a margin of {margin:.2f}); "
             f"{settle_feet(up, forward)}")
     feet = tips.vertices[[p, q, r, s]]
+    left_out = _pair_left_out(tips, d, (p, q), (r, s))
+    if left_out is not None:
+        raise SegmentationError(
+            f"cannot tell which four extremities are the feet: a pair left out (prominence {left_out[0]:.2f} and "
+            f"{left_out[1]:.2f}) stands out more than a foot taken ({left_out[2]:.2f}), as only legs do (legs "
+            f"stretched out beside horns, as in a leap?); {settle_feet(up, forward)}")
     centroid = np.average(vertices, axis=0, weights=mass)
     ground = ground_plane(vertices[feet], vertices, centroid, up)
     return FeetChoice((int(feet[0]), int(feet[1])), (int(feet[2]), int(feet[3])), float(margin), ground,
