@@ -423,9 +423,9 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
     """The foot whose leg carries a head's features, or None: two tips on that leg shaped alike
     (:func:`_shaped_alike`), alike in their distance from its foot, well apart, and
     LEG_FEATURE_REACH of the leg's length or more from its foot (ears or horns, a head's length
-    behind its nose, where toes lie within a paw's width of the foot's tip). A cat leaping with its fore legs stretched out, one
-    beside its nose, had its nose taken for a foot, its head for that foot's leg, and its tail for
-    its head: its ears were 0.87 of that "leg" from its "foot"."""
+    behind its nose, where toes lie within a paw's width of the foot's tip). A cat leaping with
+    its fore legs stretched out, one beside its nose, had its nose taken for a foot, its head for
+    that foot's leg, and its tail for its head: its ears were 0.87 of that "leg" from its "foot"."""
     distance = extremities.distance
     persistence = dict(zip(extremities.vertices.tolist(), extremities.persistence.tolist()))
     for foot in (int(f) for f in feet):
