@@ -325,6 +325,24 @@ class Extremities:
         """Indices (into ``vertices``) of the prominent tips the feet, head and tail are chosen from."""
         return np.flatnonzero(self.persistence >= CANDIDATE_PERSISTENCE)[:MAX_CANDIDATES]
 
+    @property
+    def persistence_of(self) -> dict[int, float]:
+        """Each tip's (vertex id's) relative persistence."""
+        return dict(zip(self.vertices.tolist(), self.persistence.tolist()))
+
+    @property
+    def agd_of(self) -> dict[int, float]:
+        """Each tip's (vertex id's) relative AGD."""
+        return dict(zip(self.vertices.tolist(), self.agd.tolist()))
+
+
+def _placed_as_twins(reach_1: float, reach_2: float, apart: float) -> bool:
+    """Two tips placed as a pair of ears or horns are, from a point both reach: alike in reach
+    (within MIRROR_REACH of the longer) and well apart (more than MIRROR_SPACING of it; not two
+    toes of one foot)."""
+    longer = max(reach_1, reach_2)
+    return abs(reach_1 - reach_2) < MIRROR_REACH * longer and apart > MIRROR_SPACING * longer
+
 
 def read_extremities(graph, mass) -> Extremities:
     """The tips of the mesh's protrusions with their geodesic distance fields."""
@@ -427,7 +445,7 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
     its fore legs stretched out, one beside its nose, had its nose taken for a foot, its head for
     that foot's leg, and its tail for its head: its ears were 0.87 of that "leg" from its "foot"."""
     distance = extremities.distance
-    persistence = dict(zip(extremities.vertices.tolist(), extremities.persistence.tolist()))
+    persistence = extremities.persistence_of
     for foot in (int(f) for f in feet):
         on_leg = legs == foot
         length = float(distance[foot][on_leg].max(initial=0.0))
@@ -435,11 +453,9 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
                 and persistence[int(t)] >= MIRROR_PERSISTENCE
                 and distance[foot][t] >= LEG_FEATURE_REACH * length]
         for t1, t2 in itertools.combinations(tips, 2):
-            reach = max(distance[foot][t1], distance[foot][t2])
-            if (abs(distance[foot][t1] - distance[foot][t2]) >= MIRROR_REACH * reach
-                    or distance[t1][t2] <= MIRROR_SPACING * reach):
-                continue
-            if _shaped_alike(extremities, t1, t2, vertices, faces, 0.1 * reach):
+            if (_placed_as_twins(distance[foot][t1], distance[foot][t2], distance[t1][t2])
+                    and _shaped_alike(extremities, t1, t2, vertices, faces,
+                                      0.1 * max(distance[foot][t1], distance[foot][t2]))):
                 return foot
     return None
 
@@ -448,7 +464,7 @@ def _shaped_alike(extremities: Extremities, t1: int, t2: int, vertices, faces, l
     """Two tips alike as twins are: in prominence, or else (the younger of two twins keeps only what
     it stands above the saddle between them: a horned dog's 0.86 and 0.41) in girth, their rings
     ``level`` from each tip within MIRROR_RING of each other."""
-    persistence = dict(zip(extremities.vertices.tolist(), extremities.persistence.tolist()))
+    persistence = extremities.persistence_of
     if min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2]):
         return True
     rings = [_ring_length(vertices, faces, extremities.distance[t], level) for t in (t1, t2)]
@@ -463,7 +479,7 @@ def features_in(extremities: Extremities, region: np.ndarray, vertices, faces) -
     forward direction had its trunk labelled head and its head, ears and all, chest (the ears'
     prominence 0.285 and 0.263, their AGD 0.55 and 0.54)."""
     tips = [int(extremities.vertices[k]) for k in extremities.candidates if region[int(extremities.vertices[k])]]
-    agd = dict(zip(extremities.vertices.tolist(), extremities.agd.tolist()))
+    agd = extremities.agd_of
     for t1, t2 in itertools.combinations(tips, 2):
         if abs(agd[t1] - agd[t2]) < MIRROR_AGD and _shaped_alike(
                 extremities, t1, t2, vertices, faces, 0.1 * extremities.distance[t1][t2]):
@@ -650,8 +666,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     widest = max(ring.values(), default=0.0)
     appendage = {t: ring[t] < APPENDAGE_RING * widest
                  or ring_flatness(vertices, faces, distance[t], 0.15 * reach[t]) >= FLAT_APPENDAGE for t in tips}
-    persistence = {int(t): float(p) for t, p in zip(extremities.vertices, extremities.persistence)}
-    agd = {int(t): float(g) for t, g in zip(extremities.vertices, extremities.agd)}
+    persistence, agd = extremities.persistence_of, extremities.agd_of
     # Mirror pairs: two prominent tips alike in AGD and reach, well apart (ears, horns), and alike
     # in prominence or else in girth and lying straight across the body. Of two twins the elder
     # keeps what the pair stands above the body, the younger only what it stands above the saddle
@@ -664,11 +679,10 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
             continue
         apart = vertices[t1] - vertices[t2]
         across = abs(apart @ lateral) >= MIRROR_ACROSS * np.linalg.norm(apart)
-        placed_alike = (abs(agd[t1] - agd[t2]) < MIRROR_AGD
-                        and abs(reach[t1] - reach[t2]) < MIRROR_REACH * max(reach[t1], reach[t2]))
+        placed_alike = abs(agd[t1] - agd[t2]) < MIRROR_AGD and _placed_as_twins(reach[t1], reach[t2], distance[t1][t2])
         shaped_alike = (min(persistence[t1], persistence[t2]) > 0.5 * max(persistence[t1], persistence[t2])
                         or (across and min(ring[t1], ring[t2]) > MIRROR_RING * max(ring[t1], ring[t2])))
-        if placed_alike and shaped_alike and distance[t1][t2] > MIRROR_SPACING * max(reach[t1], reach[t2]):
+        if placed_alike and shaped_alike:
             mirror_pairs.append((t1, t2))
             twinned |= {t1, t2} if across else set()
     # The main tip lies on the animal's plane of symmetry: of the tips that are no appendage, the
