@@ -303,6 +303,73 @@ def test_ears_or_horns_in_the_chest_are_found(preset, horn_length, horn_radius):
             assert found is None
 
 
+def test_a_flat_tail_behind_a_faint_bump_is_what_the_thickness_cue_measures(monkeypatch):
+    """A realistic elephant's tail is a flat sheet, an appendage by its ring as an ear is, so the
+    tail end's main tip was a faint bump on its rump (persistence 0.03) and the thickness cue
+    measured the rump's rings: head or tail refused (thickness −0.66). The generated elephant, its
+    tail flattened into a sheet and a faint tip put on its rump where the AGD found the real one's:
+    refused before, now labelled right, the thickness cue for the head end."""
+    from scipy.sparse.csgraph import dijkstra
+
+    animal = generate_quadruped("elephant", 3000)
+    vertices = animal.vertices.copy()
+    tail = animal.labels == REGION_NAMES.index("tail")
+    root = vertices[tail][np.argsort(vertices[tail][:, 0])[-5:]].mean(axis=0)
+    vertices[tail, 2] = root[2] + 0.15 * (vertices[tail, 2] - root[2])      # a sheet, across the body
+    abdomen = np.flatnonzero(animal.labels == REGION_NAMES.index("abdomen"))
+    rear = abdomen[vertices[abdomen, 0] < np.percentile(vertices[abdomen, 0], 3)]
+    bump = int(rear[np.argmax(vertices[rear, 2])])                            # on a buttock, beside the tail
+    read = body_plan.read_extremities
+
+    def with_a_bump(graph, mass):
+        found = read(graph, mass)
+        fields = dict(found.distance)
+        fields[bump] = dijkstra(graph, indices=bump)
+        return body_plan.Extremities(np.append(found.vertices, bump), np.append(found.persistence, 0.028),
+                                     np.append(found.agd, 0.7), fields, found.contrast)
+
+    monkeypatch.setattr(body_plan, "read_extremities", with_a_bump)
+    labelled = label_quadruped(Body(vertices, animal.faces))
+    assert agreement(animal, labelled) > 0.9
+    assert "thickness +1.00" in labelled.labelling.notes[0]
+
+
+def test_a_head_cut_at_its_trunk_takes_its_ears_back_from_the_chest(monkeypatch):
+    """A realistic elephant's head was cut where its trunk meets it: the trunk labelled head, the
+    head with its ears (hanging back behind the fore girdle's plane) chest, and so refused. The
+    generated horned elephant (horns for ears), its head cut by hand at the trunk (a fifth of its
+    head left as head, the rest and its horns chest): refused before; now the head is taken back to
+    just behind its horns (0.85 of the true head; 0.93 as the labeller cuts it itself), a neck
+    behind it, nothing of the abdomen taken."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from allorules.segment import labeller
+
+    animal = generate_quadruped("elephant", 3000, horn_length=0.8, horn_radius=0.12)
+    names = np.array(animal.region_names)[animal.labels]
+    head = names == "head"
+    mass = vertex_areas(animal.vertices, animal.faces)
+    nose = int(np.flatnonzero(head)[np.argmax(animal.vertices[head, 0])])
+    from_nose = dijkstra(labeller.vertex_graph(animal.vertices, animal.faces), indices=nose)
+    reach = from_nose[head].max()
+    split = labeller._split_torso
+
+    def cut_at_the_trunk(vertices, faces, graph, mass, axis, labels, ends, head_tip):
+        split(vertices, faces, graph, mass, axis, labels, ends, head_tip)
+        labels[np.isin(labels, (labeller.HEAD, labeller.NECK))] = labeller.CHEST
+        labels[head & (from_nose < 0.4 * reach)] = labeller.HEAD
+        labels[head & (from_nose >= 0.4 * reach) & (from_nose < 0.5 * reach)] = labeller.NECK
+
+    monkeypatch.setattr(labeller, "_split_torso", cut_at_the_trunk)
+    assert mass[head & (from_nose < 0.4 * reach)].sum() < 0.25 * mass[head].sum()
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    found = np.array(labelled.region_names)[labelled.labels]
+    as_head = np.isin(found, ("head", "horns", "ears", "trunk"))
+    assert mass[head & as_head].sum() > 0.8 * mass[head].sum()
+    assert labelled.region_mask("neck").any()
+    assert not (as_head | (found == "neck"))[names == "abdomen"].any()
+
+
 LEAP = Pose(swing={"fore-left": 80, "fore-right": 70, "hind-left": -80, "hind-right": -70}, neck=-30, head=-20, tail=10)
 
 

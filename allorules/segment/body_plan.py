@@ -608,7 +608,7 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
     feet = set(first_pair) | set(second_pair)
     ends = []
     for k, pair in enumerate((first_pair, second_pair)):
-        region = sides[k] & body & (owner != 1 - k)
+        region = body & ((sides[k] & (owner != 1 - k)) | (owner == k))
         across = leg_tops[pair[0]] - leg_tops[pair[1]]
         lateral = across / max(np.linalg.norm(across), 1e-300)
         ends.append(_read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet, lateral))
@@ -694,10 +694,15 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
         plain = [t for t in tips if not appendage[t]] or tips
         main_tip = max([t for t in plain if t not in twinned] or plain, key=lambda t: persistence[t])
     # How thick the end's protrusion gets part-way along it: a tail stays thin, a head does not.
+    # Measured from the main tip unless that is a faint bump (nothing sticks out there), then from
+    # the most prominent tip (the realistic elephant's tail, a flat sheet taken for an appendage:
+    # from a bump of 0.03 on its rump the rings were the rump's, and the tail end read as thicker
+    # than the trunk end).
+    prominent_tip = max(tips, key=lambda t: persistence[t], default=None)
     thickness = 0.0
     if main_tip is not None:
-        thickness = max(_ring_length(vertices, faces, distance[main_tip], f * reach[main_tip]) for f in (0.1, 0.2, 0.3))
-    prominent_tip = max(tips, key=lambda t: persistence[t], default=None)
+        measured = main_tip if persistence[main_tip] > PRESENCE_FAINT else prominent_tip
+        thickness = max(_ring_length(vertices, faces, distance[measured], f * reach[measured]) for f in (0.1, 0.2, 0.3))
     prominence = 0.0 if prominent_tip is None else persistence[prominent_tip]
     # Features of the end (ears, horns): its appendages and mirror pairs, not its main tip nor a
     # tip beside it (MUZZLE_SHARE: the wolf's lower jaw, a flat sheet 0.08 of its reach from its

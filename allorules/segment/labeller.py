@@ -653,14 +653,21 @@ def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_ti
     behind the farthest one's root: every vertex of the head or neck nearer (geodesically) to the
     head tip than that root plus the root's radius, and the features themselves (a horn bent back
     or down reaches farther from the head tip than its root). The neck keeps what lies behind, or,
-    where nothing does, a band at its base."""
+    where nothing does, a band at its base.
+
+    When the cut took only a trunk or a muzzle and left the ears in the chest behind it (the
+    realistic elephant: its head and ears labelled chest, its trunk head), the head is taken back
+    the same way out of the chest, and the neck is the band of the chest behind it, out to
+    SHORT_NECK_REACH times the head's reach from its tip (an animal whose neck no cut found shows
+    little of it), unless the two would reach the abdomen."""
     field = distance.get(head_tip)
     if field is None:
         return
     reach = 0.0
     features = np.zeros(len(vertices), dtype=bool)
+    twins = {t for pair in ends.head.mirror_pairs if (labels[list(pair)] == CHEST).all() for t in pair}
     for tip in ends.head.features:
-        if labels[tip] != NECK or tip not in distance:
+        if not (labels[tip] == NECK or tip in twins) or tip not in distance:
             continue
         followed = _follow_tip(vertices, faces, graph, tip, distance[tip], float(distance[tip][ends.head.girdle]))
         if followed is None:
@@ -672,10 +679,22 @@ def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_ti
         features |= core   # and the feature itself: a horn bent back reaches farther from the nose than its root
     if reach <= 0:
         return
-    front = np.isin(labels, (HEAD, NECK)) & ((field < reach) | features)
+    front = np.isin(labels, (HEAD, NECK, CHEST) if twins else (HEAD, NECK)) & ((field < reach) | features)
     parts = vertex_components(graph, front)
     head = front & (parts == parts[head_tip])
     if (labels[head] == NECK).all():
+        return
+    if twins:
+        chest = np.isin(labels, (NECK, CHEST))
+        band = chest & ~head & (field < SHORT_NECK_REACH * reach)
+        parts = vertex_components(graph, band | head)
+        band &= parts == parts[head_tip]
+        touching = np.asarray(graph @ (band | head).astype(float)).ravel() > 0
+        if not band.any() or (touching & (labels == ABDOMEN)).any():
+            return   # no neck behind it, or a head and neck that run on into the abdomen: left as cut
+        labels[labels == NECK] = CHEST
+        labels[head] = HEAD
+        labels[band] = NECK
         return
     neck = np.flatnonzero(labels == NECK)
     if mass[(labels == NECK) & ~head].sum() < NECK_BAND * mass[neck].sum():
