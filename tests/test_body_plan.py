@@ -246,7 +246,7 @@ def test_a_head_taken_for_a_leg_is_told_by_its_horns(preset, horn_length, horn_r
 
     def read(animal):
         graph = vertex_graph(animal.vertices, animal.faces)
-        return body_plan.read_extremities(graph, vertex_areas(animal.vertices, animal.faces))
+        return body_plan.read_extremities(graph, vertex_areas(animal.vertices, animal.faces), animal.vertices, animal.faces)
 
     def legs_and_feet(animal, extremities):
         names = np.array(animal.region_names)[animal.labels]
@@ -290,7 +290,7 @@ def test_ears_or_horns_in_the_chest_are_found(preset, horn_length, horn_radius):
     for animal, horned in ((generate_quadruped(preset, 3000, horn_length=horn_length, horn_radius=horn_radius), True),
                            (generate_quadruped(preset, 3000), False)):
         extremities = body_plan.read_extremities(vertex_graph(animal.vertices, animal.faces),
-                                                 vertex_areas(animal.vertices, animal.faces))
+                                                 vertex_areas(animal.vertices, animal.faces), animal.vertices, animal.faces)
         names = np.array(animal.region_names)[animal.labels]
         torso = (names == "chest") | (names == "abdomen")
         assert body_plan.features_in(extremities, torso, animal.vertices, animal.faces) is None
@@ -321,8 +321,8 @@ def test_a_flat_tail_behind_a_faint_bump_is_what_the_thickness_cue_measures(monk
     bump = int(rear[np.argmax(vertices[rear, 2])])                            # on a buttock, beside the tail
     read = body_plan.read_extremities
 
-    def with_a_bump(graph, mass):
-        found = read(graph, mass)
+    def with_a_bump(graph, mass, vertices, faces):
+        found = read(graph, mass, vertices, faces)
         fields = dict(found.distance)
         fields[bump] = dijkstra(graph, indices=bump)
         return body_plan.Extremities(np.append(found.vertices, bump), np.append(found.persistence, 0.028),
@@ -368,6 +368,48 @@ def test_a_head_cut_at_its_trunk_takes_its_ears_back_from_the_chest(monkeypatch)
     assert mass[head & as_head].sum() > 0.8 * mass[head].sum()
     assert labelled.region_mask("neck").any()
     assert not (as_head | (found == "neck"))[names == "abdomen"].any()
+
+
+def _sphere_with_a_well_and_a_spike():
+    """A unit sphere with a deep, narrow well pushed in at +z (the inside of an open mouth) and a
+    spike pulled out at −z (a protrusion)."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    vertices, faces = np.asarray(sphere.vertices, dtype=float), np.asarray(sphere.faces, dtype=np.int64)
+    from_top = np.arccos(np.clip(vertices[:, 2], -1.0, 1.0))
+    radius = (1.0 - 0.8 * np.sqrt(np.clip(1.0 - (from_top / 0.2) ** 2, 0.0, None))
+              + 0.8 * np.clip(1.0 - (np.pi - from_top) / 0.3, 0.0, None))
+    return vertices * radius[:, None], faces
+
+
+def test_the_end_of_a_well_is_a_cavity_and_a_spikes_tip_is_not():
+    """The AGD peaks at the end of a modelled mouth as at a nose (the TOSCA horses' mouths were
+    their heads' tips): the end of a well is enclosed and concave, a spike's tip and a point of the
+    sphere are not; a surface turned inside out has no cavity (its normals would make all one)."""
+    from allorules.segment.labeller import vertex_graph
+
+    vertices, faces = _sphere_with_a_well_and_a_spike()
+    direction = vertices / np.linalg.norm(vertices, axis=1)[:, None]
+    tips = [int(np.argmax(direction[:, 2])), int(np.argmin(direction[:, 2])), int(np.argmax(direction[:, 0]))]
+    fields = body_plan.geodesic_fields(vertex_graph(vertices, faces), tips)
+    assert body_plan.cavity_ends(vertices, faces, tips, fields).tolist() == [True, False, False]
+    assert not body_plan.cavity_ends(vertices, faces[:, ::-1], tips, fields).any()
+
+
+def test_a_yielding_maximum_gives_its_prominence_to_the_one_it_meets():
+    """Persistence on a path 0, 2, 1, 5, 4.5, 0: the peak 5 lives to the end (5), the peak 2 dies
+    where they meet at 1 (persistence 1). The peak 5 yielding (a cavity's end) dies there instead
+    (4) and the peak 2 carries on to the end (2)."""
+    from scipy.sparse import coo_matrix
+
+    values = np.array([0.0, 2.0, 1.0, 5.0, 4.5, 0.0])
+    a, b = np.arange(len(values) - 1), np.arange(1, len(values))
+    graph = coo_matrix((np.ones(2 * len(a)), (np.r_[a, b], np.r_[b, a])), shape=(len(values),) * 2).tocsr()
+    tips, persistence = body_plan.persistent_maxima(values, graph)
+    assert dict(zip(tips.tolist(), persistence.tolist())) == {3: 5.0, 1: 1.0}
+    tips, persistence = body_plan.persistent_maxima(values, graph, yielding=[3])
+    assert dict(zip(tips.tolist(), persistence.tolist())) == {1: 2.0, 3: 4.0}
 
 
 LEAP = Pose(swing={"fore-left": 80, "fore-right": 70, "hind-left": -80, "hind-right": -70}, neck=-30, head=-20, tail=10)

@@ -186,6 +186,32 @@ def enclosed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
+def ray_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Distance along each ray (``origins`` + t · ``directions``, unit directions) to the first
+    face it meets, ``inf`` where it meets none (libigl's AABB tree through gpytoolbox)."""
+    import gpytoolbox
+
+    if len(origins) == 0:
+        return np.zeros(0)
+    hit, _, _ = gpytoolbox.ray_mesh_intersect(np.asarray(origins, dtype=np.float64), np.asarray(directions, dtype=np.float64),
+                                              np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32))
+    return np.asarray(hit, dtype=float)
+
+
+def cone_directions(axis: np.ndarray, count: int, spread_degrees: float) -> np.ndarray:
+    """``count`` unit directions spread evenly (a Fibonacci spiral) over the cap within
+    ``spread_degrees`` of the unit ``axis``."""
+    k = np.arange(count) + 0.5
+    cos = 1.0 - k / count * (1.0 - np.cos(np.radians(spread_degrees)))
+    phi = k * np.pi * (3.0 - np.sqrt(5.0))
+    sin = np.sqrt(1.0 - cos ** 2)
+    z = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([sin * np.cos(phi), sin * np.sin(phi), cos]) @ np.vstack([x, np.cross(z, x), z])
+
+
 def plane_section(vertices: np.ndarray, faces: np.ndarray, point: np.ndarray,
                   normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Segments where a closed mesh crosses a plane, oriented counter-clockwise about ``normal``.

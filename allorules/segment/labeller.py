@@ -160,7 +160,7 @@ def _unit_or_none(direction, name: str) -> np.ndarray | None:
 
 
 def _label_connected(vertices, faces, graph, mass, up, forward):
-    extremities = body_plan.read_extremities(graph, mass)
+    extremities = body_plan.read_extremities(graph, mass, vertices, faces)
     choice = body_plan.choose_feet(extremities, vertices, faces, mass, up, forward)
     feet = np.array(choice.fore_pair + choice.other_pair)
     distance = extremities.distance
