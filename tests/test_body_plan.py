@@ -988,3 +988,25 @@ def test_a_pig_with_no_visible_neck_keeps_its_head_and_its_tail_at_any_resolutio
         nearest = cKDTree(other.vertices).query(coming.vertices)[1]
         differ = front(coming, np.arange(len(coming.vertices))) != front(other, nearest)
         assert area[differ].sum() < 0.05 * area.sum(), (size, area[differ].sum() / area.sum(), shares)
+
+def test_a_neck_that_widens_at_once_ends_where_the_widening_levels_off():
+    """A TOSCA horse standing with its head low: from the back of its head the sections widen at
+    once and steadily to the chest's girth, then level off; the knee below the chord fell half a
+    radius from the bend (neck 0.9 % of the surface, the rest of it chest). A tube of revolution
+    widening linearly from r 0.05 to 0.13 over 0.25, then straight, the shoulders just beyond:
+    the neck ends where the widening levels off, at 0.25."""
+    import trimesh
+
+    from allorules.mesh.topology import face_adjacency
+    from allorules.segment import labeller
+
+    z = np.linspace(0.0, 0.6, 121)
+    radius = np.where(z < 0.25, 0.05 + 0.08 * z / 0.25, 0.13)
+    profile = np.vstack([[0.0, 0.0], np.column_stack([radius, z]), [0.0, 0.6]])
+    tube = trimesh.creation.revolve(profile, sections=64)
+    vertices, faces = np.asarray(tube.vertices, dtype=float), np.asarray(tube.faces, dtype=np.int64)
+    around = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    shoulders = np.column_stack([0.13 * np.cos(around), 0.13 * np.sin(around), np.full(16, 0.3)])
+    neck = labeller._follow_neck(vertices, faces, face_adjacency(faces), np.array([0.0, 0.0, 0.01]),
+                                 np.array([0.0, 0.0, 1.0]), 0.004, 0.5, shoulders)
+    assert neck is not None and 0.22 < neck.base[2] < 0.28

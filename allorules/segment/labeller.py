@@ -1061,6 +1061,17 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
         clear = int(np.argmax(ahead > 0))   # the first section with a shoulder point on the head's side
         if ahead[found[0]] > SHOULDER_SHARE and clear > 0:
             found = _neck_knee(radii[:clear + 1], travelled[:clear + 1]) or (clear, int(np.argmin(radii[:clear + 1])))
+        elif (travelled[found[1]] < MIN_NARROWING * radii[found[1]]
+              and travelled[found[0]] < MIN_NECK_LENGTH * radii[found[1]] and clear > found[0]):
+            # No narrowing and no knee a neck's length from the bend: the sections widen at once and
+            # steadily, up to the chest's girth (the TOSCA horse standing, its head low: 0.048 to
+            # 0.13 over 80 sections, then level), and the knee below the chord fell half a radius
+            # from the bend. The neck ends where that widening levels off (the knee above the
+            # chord), at the shoulders at the latest. (A neck that narrows first keeps its knee:
+            # the low-poly dog's, 0.97 radii from its bend, ran on into its chest this way.)
+            flare = _flare_end(radii[:clear + 1], travelled[:clear + 1], found[1])
+            if flare is not None and travelled[flare] >= MIN_NECK_LENGTH * radii[found[1]]:
+                found = (flare, found[1])
     if found is None:
         return None
     base, narrowest = found
@@ -1094,6 +1105,18 @@ def _neck_knee(radii: np.ndarray, travelled: np.ndarray) -> tuple[int, int] | No
     if radii[narrowest] <= 0:
         return None
     return base, narrowest
+
+
+def _flare_end(radii: np.ndarray, travelled: np.ndarray, narrowest: int) -> int | None:
+    """Where a widening that levels off does so: past the narrowest section, the point of r's
+    running maximum farthest above the chord from there to its top (None where it does not rise)."""
+    grown = np.maximum.accumulate(radii[narrowest:])
+    top = int(np.argmax(grown))
+    if top < 2:
+        return None
+    along = travelled[narrowest:] - travelled[narrowest]
+    chord = grown[0] + along * ((grown[top] - grown[0]) / along[top])
+    return narrowest + int(np.argmax((grown - chord)[:top + 1]))
 
 
 def _section_loop(vertices, faces, adjacency, point, normal):
