@@ -1010,3 +1010,23 @@ def test_a_neck_that_widens_at_once_ends_where_the_widening_levels_off():
     neck = labeller._follow_neck(vertices, faces, face_adjacency(faces), np.array([0.0, 0.0, 0.01]),
                                  np.array([0.0, 0.0, 1.0]), 0.004, 0.5, shoulders)
     assert neck is not None and 0.22 < neck.base[2] < 0.28
+
+
+def test_an_appendage_hangs_from_the_body_and_a_band_round_it_does_not():
+    """Ears, horns, a trunk and a tail are leaves: the body without them is one piece. The realistic
+    elephant's two ears, their roots wrapped round the back of its head, held its head on (a run
+    then held them as a neck, the head their children, and their mass missed isometric by 0.04); a
+    cap of a sphere is a leaf, a band round its equator is not (nor two half-bands that meet)."""
+    import trimesh
+
+    from allorules.segment.labeller import _a_leaf, vertex_graph
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices, faces = np.asarray(sphere.vertices, dtype=float), np.asarray(sphere.faces, dtype=np.int64)
+    graph, mass = vertex_graph(vertices, faces), vertex_areas(vertices, faces)
+    height = vertices[:, 2]
+    assert _a_leaf(faces, graph, mass, height > 0.8)
+    band = np.abs(height) < 0.15
+    assert not _a_leaf(faces, graph, mass, band)
+    assert _a_leaf(faces, graph, mass, band & (vertices[:, 0] > 0.3))      # half a band: a leaf
+    assert not _a_leaf(faces, graph, mass, band & (vertices[:, 0] > -0.1) | band & (vertices[:, 0] < 0.1))
