@@ -814,12 +814,14 @@ def _a_leaf(faces, graph, mass, region: np.ndarray) -> bool:
     taken = np.zeros(len(region), dtype=bool)
     taken[faces[region[faces].sum(axis=1) >= 2].ravel()] = True
     rest = ~(region | taken)
+    if not rest.any():
+        return False
     parts = vertex_components(graph, rest)
     shares = np.bincount(parts[rest], weights=mass[rest])
     return bool(shares.max() >= LEAF_SHARE * shares.sum())
 
 
-LEAF_SHARE = 0.99
+LEAF_SHARE = 0.99   # the body without its appendages keeps this share of its area in one piece
 TUBE_GROWTH = 2.0   # a tube ends where its rings grow to this many times its narrowest ring's radius
 
 
@@ -1116,30 +1118,31 @@ def _neck_knee(radii: np.ndarray, travelled: np.ndarray) -> tuple[int, int] | No
     if len(radii) < 3:
         return None
     narrowest = int(np.argmin(radii[:int(np.argmax(radii)) + 1]))   # the neck: before the widest (chest)
-    # Past the narrowest section, r's running maximum (a dip where a plane slips between two
-    # bulges is not the neck again); its knee up to where it first reaches its top.
-    grown = np.maximum.accumulate(radii[narrowest:])
-    top = int(np.argmax(grown))
-    if top < 2:
+    above = _above_chord(radii, travelled, narrowest)
+    if above is None or radii[narrowest] <= 0:
         return None
-    along_track = travelled[narrowest:] - travelled[narrowest]
-    chord = grown[0] + along_track * ((grown[top] - grown[0]) / along_track[top])
-    base = narrowest + int(np.argmax((chord - grown)[:top + 1]))
-    if radii[narrowest] <= 0:
-        return None
-    return base, narrowest
+    return narrowest + int(np.argmax(-above)), narrowest
 
 
-def _flare_end(radii: np.ndarray, travelled: np.ndarray, narrowest: int) -> int | None:
-    """Where a widening that levels off does so: past the narrowest section, the point of r's
-    running maximum farthest above the chord from there to its top (None where it does not rise)."""
+def _above_chord(radii: np.ndarray, travelled: np.ndarray, narrowest: int) -> np.ndarray | None:
+    """How far r's running maximum past the narrowest section (a dip where a plane slips between
+    two bulges is not the neck again) lies above the chord from there to where it first reaches its
+    top, at each section up to that top; None where it does not rise over two sections. Its knee
+    (farthest below) is a neck's base, its farthest above where a widening levels off."""
     grown = np.maximum.accumulate(radii[narrowest:])
     top = int(np.argmax(grown))
     if top < 2:
         return None
     along = travelled[narrowest:] - travelled[narrowest]
     chord = grown[0] + along * ((grown[top] - grown[0]) / along[top])
-    return narrowest + int(np.argmax((grown - chord)[:top + 1]))
+    return (grown - chord)[:top + 1]
+
+
+def _flare_end(radii: np.ndarray, travelled: np.ndarray, narrowest: int) -> int | None:
+    """Where a widening that levels off does so: past the narrowest section, the point of r's
+    running maximum farthest above its chord (:func:`_above_chord`; None where it does not rise)."""
+    above = _above_chord(radii, travelled, narrowest)
+    return None if above is None else narrowest + int(np.argmax(above))
 
 
 def _section_loop(vertices, faces, adjacency, point, normal):
