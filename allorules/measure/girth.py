@@ -25,7 +25,7 @@ from allorules.measure.sections import (
     isocontour_stack,
 )
 from allorules.mesh.geometry import face_areas
-from allorules.mesh.topology import face_parts, submesh
+from allorules.mesh.topology import face_parts, faces_mostly_in, submesh
 
 # Heart girth's last candidate lies this share of the chest's length behind the forelimbs, clear of
 # the armpit's flare: on the real horse the chest's sections rise by 2.5 % over the last 5 % of its
@@ -114,7 +114,7 @@ def _torso_piece(body: Body, region: str) -> RegionPart:
         for name in TAPE_REGIONS:
             if body.has_region(name):
                 in_torso |= body.region_mask(name)
-        faces = body.faces[in_torso[body.faces].sum(axis=1) >= 2]
+        faces = body.faces[faces_mostly_in(body.faces, in_torso)]
         pieces = []
         for face_index in face_parts(faces):
             vertices, local_faces, vertex_index = submesh(body.vertices, faces, face_index)

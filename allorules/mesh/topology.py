@@ -73,6 +73,12 @@ def face_adjacency(faces: np.ndarray) -> sparse.csr_matrix:
 # Connected parts
 
 
+def faces_mostly_in(faces: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Which faces lie mostly (≥ 2 of 3 corners) in a vertex ``mask``: a region's faces as its
+    measures take them (``Body.region_face_mask`` for one named region; the core keeps its own)."""
+    return np.asarray(mask)[faces].sum(axis=1) >= 2
+
+
 def face_components(faces: np.ndarray) -> np.ndarray:
     """The edge-connected part each face belongs to (ids 0 … k−1)."""
     return csgraph.connected_components(face_adjacency(faces), directed=False)[1]

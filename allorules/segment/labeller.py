@@ -41,6 +41,7 @@ from allorules.mesh.geometry import plane_section_loops, smoothstep, vertex_area
 from allorules.mesh.topology import (
     directed_edges,
     face_adjacency,
+    faces_mostly_in,
     vertex_components,
     vertex_graph,
 )
@@ -812,7 +813,7 @@ def _a_leaf(faces, graph, mass, region: np.ndarray) -> bool:
     neck between them (the head their "children", moved rigidly) and their mass missed isometric by
     0.04."""
     taken = np.zeros(len(region), dtype=bool)
-    taken[faces[region[faces].sum(axis=1) >= 2].ravel()] = True
+    taken[faces[faces_mostly_in(faces, region)].ravel()] = True
     rest = ~(region | taken)
     if not rest.any():
         return False
