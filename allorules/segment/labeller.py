@@ -1025,6 +1025,10 @@ THROAT_SHARE = (0.3, 0.7)   # the narrowest section this share of the neck from 
 SHOULDER_SHARE = 0.25   # a neck base with more of the forelimbs' junction than this on its head side reaches over the shoulders
 
 
+LOST_SECTION = 0.6   # a section under this share of the one before it is not the tube's (see _follow_neck)
+LOST_STEPS = 3       # ... and the tube is lost after this many such sections in a row
+
+
 class _Neck(NamedTuple):
     """A neck followed from a bend (:func:`_follow_neck`); lengths in radii of its narrowest section."""
 
@@ -1061,12 +1065,24 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
     point = start
     travelled, radii, centres, directions = [], [], [], []
     distance_so_far = 0.0
+    lost = 0
     for _ in range(4 * PROFILE_LEVELS):
         section = _section_loop(vertices, faces, adjacency, point, direction)
         if section is None:
             break
         area, centre, _ = section
         r = float(np.sqrt(area / np.pi))
+        if radii and r < LOST_SECTION * radii[-1]:
+            # not the tube's section: a step is a few hundredths of a radius, and no neck narrows by
+            # half over it; the plane has slipped into a gap or an open mouth (its loop, nested in
+            # the head's, is the one around the point). Stepped over; lost for good after LOST_STEPS.
+            lost += 1
+            if lost > LOST_STEPS:
+                break
+            point = point + step * direction
+            distance_so_far += step
+            continue
+        lost = 0
         travelled.append(distance_so_far)
         radii.append(r)
         centres.append(centre)
