@@ -32,6 +32,7 @@ from allorules.runs.results import (
     EXPONENT_TOLERANCE,
     MASS_TOLERANCE,
     BiologyScalingResult,
+    trunk_only,
 )
 from allorules.runs.ruleset_run import scale_with_ruleset
 from allorules.runs.steps import step_ratios
@@ -855,3 +856,26 @@ def test_a_run_whose_trunk_humps_beyond_the_limit_misses(animal, registry, monke
     assert not humped.converged and humped.missed == ("distorted",)
     assert any("the trunk changed shape by 45%" in message and "limit 40%" in message for message in humped.messages)
     assert all(abs(rule.error) <= EXPONENT_TOLERANCE for rule in humped.rules)
+    # humped as its length strayed, the shape is the trunk's miss, which holding its length mends:
+    # such a run is made again with the hold first, as for the length alone (the donkey 385 at ×0.5)
+    monkeypatch.setattr(ruleset_run, "TRUNK_LENGTH_TOLERANCE", abs(met.trunk_length_exponent - 1 / 3) / 2)
+    shortened = _run(animal, registry, ruleset, 2.0)
+    assert shortened.missed == ("trunk", "trunk-shape") and trunk_only(shortened.missed)
+    assert shortened.settle_trunk() is None       # not its length alone: no rule on it settles it
+
+
+def test_a_run_that_missed_only_its_trunk_is_held_first():
+    """The tries after a miss (runs/pipeline._more_variables): the trunk's length held alone first
+    where the trunk is the one miss, its shape with it or not; the limbs' thickness first otherwise
+    (a distorted leg, a rule)."""
+    from allorules.rules.model import SolverSettings
+    from allorules.runs.pipeline import _more_variables
+
+    solver = SolverSettings()
+    for missed in (("trunk",), ("trunk", "trunk-shape")):
+        assert trunk_only(missed)
+        first = _more_variables(solver, missed)[0]
+        assert first[0] == "trunk_hold" and first[2] == {"limb_thickness": "off", "trunk_hold": "on"}
+    for missed in (("trunk", "distorted"), ("rule", "trunk"), ("distorted",), ("trunk-shape",)):
+        assert not trunk_only(missed)
+        assert _more_variables(solver, missed)[0][0] == "limb_thickness"

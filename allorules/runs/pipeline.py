@@ -76,6 +76,7 @@ from allorules.runs.results import (
     RawGlobalResult,
     ScalingResult,
     trunk_longer,
+    trunk_only,
 )
 from allorules.runs.ruleset_run import (
     BASIS_EVERY,
@@ -469,9 +470,9 @@ def _scale_with_ruleset(body: Body, scaling: RulesetScaling, *, registry: Plugin
     serving four steps is the speed's approximation, and where a run's path through its steps is on
     a knife's edge it decides it: the donkey 385 at ×2 missed its heart girth (0.386 for 0.365) and
     every try after, and with a basis every step (or one for all eight) it converges, its trunk
-    held (0.363). Not where the trunk's length is the one miss (:meth:`BiologyScalingResult.settle_trunk`)."""
+    held (0.363). Not where the trunk is the one miss (:func:`allorules.runs.results.trunk_only`)."""
     result = _ruleset_tries(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
-    if result.converged or BASIS_EVERY == 1 or result.missed == ("trunk",):
+    if result.converged or BASIS_EVERY == 1 or trunk_only(result.missed):
         # a trunk that is the one miss is the ruleset's demand, not the path's (the galloping horse
         # at ×2 after 12 minutes of tries): said as it is, not made again
         return result
@@ -679,8 +680,8 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     trunk's length held isometric, δ its lever; then δ free (the hold off). Both along the forward
     axis: per-axis transform only; neither when δ is off.
 
-    A run that met every target but the trunk's length (``missed``, see
-    :data:`allorules.runs.results.MISSES`) starts with the hold alone, then κ and the hold
+    A run that met every target but the trunk's length, its shape perhaps missed with it (``missed``,
+    :func:`allorules.runs.results.trunk_only`), starts with the hold alone, then κ and the hold
     together, then κ alone (which rarely moves the trunk: the real horse at ×2, 0.437 with it and
     without). Held alone, the real horse at ×2 converges with its hooves in proportion (×1.27-1.39,
     trunk 0.386), where κ with the hold thinned the legs Eq. 9 had thickened and left the hooves
@@ -689,7 +690,7 @@ def _more_variables(solver, missed: tuple[str, ...] = ()) -> list[tuple[str, str
     thickness = {"limb_thickness": "on"} if solver.limb_thickness == "when-needed" else {}
     holding = solver.trunk_stretch != "off" and solver.transform == "per-axis" and solver.trunk_hold == "when-needed"
     more = []
-    if holding and missed == ("trunk",):
+    if holding and trunk_only(missed):
         more.append(("trunk_hold", "the trunk's length held isometric by a soft term",
                      {"limb_thickness": "off", "trunk_hold": "on"} if thickness else {"trunk_hold": "on"}))
         if thickness:

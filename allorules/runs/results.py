@@ -101,9 +101,17 @@ def trunk_longer(exponent: float, mass_ratio: float) -> bool:
 
 
 # The kinds of target a ruleset run can miss (BiologyScalingResult.missed): a rule's exponent, the
-# mass ratio, a constraint's residual, the trunk's length beyond TRUNK_LENGTH_TOLERANCE, and a
-# distorted output (allorules/measure/quality.py). What is tried next depends on it (runs/pipeline.py).
-MISSES = ("rule", "mass", "constraint", "trunk", "distorted")
+# mass ratio, a constraint's residual, the trunk's length beyond TRUNK_LENGTH_TOLERANCE, its shape
+# beyond TRUNK_SHAPE_LIMIT where its length missed too (a trunk drawn out or shortened humps or sags
+# with it), and a distorted output (allorules/measure/quality.py). What is tried next depends on it
+# (runs/pipeline.py).
+MISSES = ("rule", "mass", "constraint", "trunk", "trunk-shape", "distorted")
+
+
+def trunk_only(missed: tuple[str, ...]) -> bool:
+    """Whether a run missed nothing but its trunk: its length, and with it perhaps its shape. Such a
+    run is made again with the trunk's length held first (runs/pipeline.py)."""
+    return "trunk" in missed and set(missed) <= {"trunk", "trunk-shape"}
 
 
 @dataclass
