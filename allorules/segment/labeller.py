@@ -1026,7 +1026,7 @@ SHOULDER_SHARE = 0.25   # a neck base with more of the forelimbs' junction than 
 
 
 LOST_SECTION = 0.6   # a section under this share of the one before it is not the tube's (see _follow_neck)
-LOST_STEPS = 3       # ... and the tube is lost after this many such sections in a row
+LOST_STEPS = 3       # ... stepped over up to this many in a row; one more and the tube is lost
 
 
 class _Neck(NamedTuple):
@@ -1074,8 +1074,8 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
         r = float(np.sqrt(area / np.pi))
         if radii and r < LOST_SECTION * radii[-1]:
             # not the tube's section: a step is a few hundredths of a radius, and no neck narrows by
-            # half over it; the plane has slipped into a gap or an open mouth (its loop, nested in
-            # the head's, is the one around the point). Stepped over; lost for good after LOST_STEPS.
+            # two fifths over one; the plane has slipped into a gap or an open mouth (its loop,
+            # nested in the head's, is the one around the point). Stepped over, up to LOST_STEPS.
             lost += 1
             if lost > LOST_STEPS:
                 break
