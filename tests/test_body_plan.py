@@ -989,22 +989,28 @@ def test_a_pig_with_no_visible_neck_keeps_its_head_and_its_tail_at_any_resolutio
         differ = front(coming, np.arange(len(coming.vertices))) != front(other, nearest)
         assert area[differ].sum() < 0.05 * area.sum(), (size, area[differ].sum() / area.sum(), shares)
 
+
+def _revolved_tube(z: np.ndarray, radius: np.ndarray, *more) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a closed tube of revolution about the z axis, its radius given along z,
+    with any ``more`` trimesh parts put in the same mesh."""
+    import trimesh
+
+    profile = np.vstack([[0.0, 0.0], np.column_stack([radius, z]), [0.0, z[-1]]])
+    mesh = trimesh.util.concatenate([trimesh.creation.revolve(profile, sections=64), *more])
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+
+
 def test_a_neck_that_widens_at_once_ends_where_the_widening_levels_off():
     """A TOSCA horse standing with its head low: from the back of its head the sections widen at
     once and steadily to the chest's girth, then level off; the knee below the chord fell half a
     radius from the bend (neck 0.9 % of the surface, the rest of it chest). A tube of revolution
     widening linearly from r 0.05 to 0.13 over 0.25, then straight, the shoulders just beyond:
     the neck ends where the widening levels off, at 0.25."""
-    import trimesh
-
     from allorules.mesh.topology import face_adjacency
     from allorules.segment import labeller
 
     z = np.linspace(0.0, 0.6, 121)
-    radius = np.where(z < 0.25, 0.05 + 0.08 * z / 0.25, 0.13)
-    profile = np.vstack([[0.0, 0.0], np.column_stack([radius, z]), [0.0, 0.6]])
-    tube = trimesh.creation.revolve(profile, sections=64)
-    vertices, faces = np.asarray(tube.vertices, dtype=float), np.asarray(tube.faces, dtype=np.int64)
+    vertices, faces = _revolved_tube(z, np.where(z < 0.25, 0.05 + 0.08 * z / 0.25, 0.13))
     around = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
     shoulders = np.column_stack([0.13 * np.cos(around), 0.13 * np.sin(around), np.full(16, 0.3)])
     neck = labeller._follow_neck(vertices, faces, face_adjacency(faces), np.array([0.0, 0.0, 0.01]),
@@ -1025,12 +1031,9 @@ def test_a_neck_followed_steps_over_a_cavity_its_plane_slips_into():
     from allorules.segment import labeller
 
     z = np.linspace(0.0, 0.6, 121)
-    radius = np.where(z < 0.3, 0.05, np.minimum(0.05 + 0.08 * (z - 0.3) / 0.1, 0.13))
-    profile = np.vstack([[0.0, 0.0], np.column_stack([radius, z]), [0.0, 0.6]])
-    tube = trimesh.creation.revolve(profile, sections=64)
     pocket = trimesh.creation.cylinder(radius=0.01, segment=[[0.0, 0.0, 0.099], [0.0, 0.0, 0.107]], sections=16)
-    both = trimesh.util.concatenate([tube, pocket])
-    vertices, faces = np.asarray(both.vertices, dtype=float), np.asarray(both.faces, dtype=np.int64)
+    vertices, faces = _revolved_tube(z, np.where(z < 0.3, 0.05, np.minimum(0.05 + 0.08 * (z - 0.3) / 0.1, 0.13)),
+                                     pocket)
     neck = labeller._follow_neck(vertices, faces, face_adjacency(faces), np.array([0.0, 0.0, 0.01]),
                                  np.array([0.0, 0.0, 1.0]), 0.004, 0.5)
     assert neck is not None and abs(neck.narrowest_radius - 0.05) < 0.005, neck
