@@ -11,6 +11,7 @@ from allorules.mesh.working import (
     MIN_WORKING_VERTICES,
     WORKING_VERTICES,
     check_working_vertices,
+    flip_flat_triangles,
     make_working_mesh,
     triangle_quality,
 )
@@ -93,6 +94,30 @@ def test_an_open_body_with_holes_keeps_its_holes() -> None:
     from allorules.mesh.topology import count_boundary_loops
 
     assert count_boundary_loops(working.faces) == 3
+
+
+def test_a_flat_triangle_has_its_long_edge_flipped_and_one_on_a_rim_stays() -> None:
+    """A remeshed vertex projected onto a rim's edge makes a triangle with an angle of 180° (a
+    held-out donkey's working mesh: its basis took 11× as long). Its long edge is flipped where
+    another triangle lies across it; the surface keeps its orientation and its edges unique."""
+    from allorules.mesh.geometry import corner_angles, face_normals
+
+    vertices = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 1e-7, 0.0], [1.0, -1.0, 0.0],
+                         [3.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    # (2, 0, 1) is flat at corner 2; (1, 0, 3) lies across its long edge (0, 1); (2, 1, 4) and
+    # (2, 5, 0) close the fan above it
+    faces = np.array([[2, 0, 1], [1, 0, 3], [2, 1, 4], [2, 5, 0]])
+    flipped = flip_flat_triangles(vertices, faces)
+    assert corner_angles(vertices, faces).max() > 179.99
+    assert corner_angles(vertices, flipped).max() < 170 and corner_angles(vertices, flipped[:2]).min() > 44
+    assert np.all(np.sign(face_normals(vertices, flipped)[:, 2]) == np.sign(face_normals(vertices, faces[1:2])[0, 2]))
+    edges = np.sort(np.vstack([flipped[:, [0, 1]], flipped[:, [1, 2]], flipped[:, [2, 0]]]), axis=1)
+    assert len(np.unique(edges, axis=0)) == len(edges) - 3     # the three inner edges, each used twice
+    # with nothing across its long edge (a rim), the flat triangle stays
+    assert np.array_equal(flip_flat_triangles(vertices, faces[[0, 2, 3]]), faces[[0, 2, 3]])
+    # a remesh with no such triangle is left exactly as it is
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    assert np.array_equal(flip_flat_triangles(sphere.vertices, sphere.faces), sphere.faces)
 
 
 @pytest.mark.parametrize("count", [MIN_WORKING_VERTICES - 1, MAX_WORKING_VERTICES + 1, 0, -5, 2500.5])

@@ -52,6 +52,18 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
+def corner_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3) the angle of each triangle at each of its corners, in degrees."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    angles = np.empty((len(corners), 3))
+    for k in range(3):
+        a = corners[:, (k + 1) % 3] - corners[:, k]
+        b = corners[:, (k + 2) % 3] - corners[:, k]
+        cosine = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        angles[:, k] = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+    return angles
+
+
 def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """A third of the area of the faces around each vertex: the barycentric (lumped) mass matrix D
     of METHOD §2, D_ii = Σ_{faces ∋ i} area / 3, and every area weight per vertex."""

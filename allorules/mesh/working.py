@@ -50,6 +50,8 @@ MAX_WORKING_VERTICES = 100000    # the paper's own limit; a 1,000-mode basis sta
 WORKING_METHOD = "remesh"        # or "decimate" (see make_working_mesh)
 DECIMATE_FIRST = 4               # above this many times the target, decimate before remeshing
 REMESH_ITERATIONS = 10
+FLAT_ANGLE = 170.0               # degrees: a working triangle with a wider angle has its long edge flipped
+FLIP_PASSES = 5
 # A body is a single sheet when its holes' caps hold more than this share of its surface, and too
 # thin when its enclosed volume over area^1.5 is below THIN (a sphere 0.094, a quadruped 0.02-0.04,
 # a 100 x 100 x 1 plate 0.0035, x 0.2 0.0007).
@@ -147,13 +149,9 @@ def check_working_vertices(count: int | None) -> int:
 def triangle_quality(vertices: np.ndarray, faces: np.ndarray) -> dict[str, float]:
     """Smallest angle of each triangle: its minimum, 1st percentile and median (degrees), and the
     share of triangles whose smallest angle is under 10° (60° everywhere is equilateral)."""
-    corners = np.asarray(vertices, dtype=float)[np.asarray(faces)]
-    smallest = np.full(len(corners), np.inf)
-    for k in range(3):
-        a = corners[:, (k + 1) % 3] - corners[:, k]
-        b = corners[:, (k + 2) % 3] - corners[:, k]
-        cosine = np.einsum("ij,ij->i", a, b) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
-        smallest = np.minimum(smallest, np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    from allorules.mesh.geometry import corner_angles
+
+    smallest = corner_angles(vertices, faces).min(axis=1)
     if not len(smallest):
         return {"min_angle": 0.0, "min_angle_p1": 0.0, "min_angle_median": 0.0, "below_10": 1.0}
     return {"min_angle": float(smallest.min()), "min_angle_p1": float(np.percentile(smallest, 1)),
@@ -221,6 +219,7 @@ def make_working_mesh(vertices: np.ndarray, faces: np.ndarray, target: int | Non
                         "tool (non-manifold or self-overlapping parts) or set --working-vertices "
                         f"{len(vertices)} to work on it as it is") from None
     working_vertices, working_faces = _repaired(remeshed_vertices, remeshed_faces, name)
+    working_faces = flip_flat_triangles(working_vertices, working_faces)
     if len(working_vertices) < 0.5 * target:
         raise MeshError(f"{name}: the working mesh came out with {len(working_vertices)} vertices for {target}: the "
                         "surface is too broken to remesh; repair it in your modelling tool")
@@ -229,6 +228,61 @@ def make_working_mesh(vertices: np.ndarray, faces: np.ndarray, target: int | Non
                           time.perf_counter() - started, quality)
     log.info("%s", working.describe())
     return working
+
+
+def flip_flat_triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` with the long edge of each near-flat triangle flipped (a new array).
+
+    remesh_botsch projects every vertex back onto the body, and a vertex beside a hole's rim can
+    land on one of the rim's edges: a triangle with an angle of 180°, whose cotangent weight is
+    unbounded. A held-out donkey split to 136k vertices had four on its working mesh, and every
+    1,000-mode basis of it took 37 s instead of 3.4 s (docs/working-mesh.md). The edge opposite an
+    angle above :data:`FLAT_ANGLE` is flipped where it lies inside the surface, the edge it becomes
+    is not one already, and the pair's smallest angle grows; a flat triangle at the rim itself
+    stays. (gpytoolbox and libigl's bindings have no edge flip.)"""
+    from allorules.mesh.geometry import corner_angles
+
+    faces = np.array(faces, dtype=np.int64)
+    count = int(faces.max(initial=-1)) + 1
+    for _ in range(FLIP_PASSES):
+        angles = corner_angles(vertices, faces)
+        flat = np.flatnonzero(angles.max(axis=1) > FLAT_ANGLE)
+        if not len(flat):
+            break
+        # directed edge (a, b) of face i at row 3 i + k: a = faces[i, k], b = faces[i, k + 1]
+        keys = (faces * count + np.roll(faces, -1, axis=1)).ravel()
+        order = np.argsort(keys)
+        touched, created = set(), set()       # faces changed and edges made in this pass (not in keys)
+        for i in flat:
+            corner = int(np.argmax(angles[i]))
+            apex, a, b = faces[i, corner], faces[i, (corner + 1) % 3], faces[i, (corner + 2) % 3]
+            position = np.searchsorted(keys, b * count + a, sorter=order)   # the face across (a, b) walks (b, a)
+            if position == len(keys) or keys[order[position]] != b * count + a:
+                continue                                                   # (a, b) is on a rim
+            j = int(order[position]) // 3
+            other = int(faces[j][(int(order[position]) % 3 + 2) % 3])
+            diagonal = frozenset((int(apex), other))
+            if (i in touched or j in touched or other == apex or diagonal in created
+                    or _has_edge(keys, order, count, apex, other)):
+                continue
+            pair = np.array([[apex, a, other], [apex, other, b]])
+            if corner_angles(vertices, pair).min() <= angles[[i, j]].min():
+                continue
+            faces[i], faces[j] = pair
+            touched |= {i, j}
+            created.add(diagonal)
+        if not created:
+            break
+    return faces
+
+
+def _has_edge(keys: np.ndarray, order: np.ndarray, count: int, a: int, b: int) -> bool:
+    """Whether a face walks (a, b) or (b, a)."""
+    for key in (a * count + b, b * count + a):
+        position = np.searchsorted(keys, key, sorter=order)
+        if position < len(keys) and keys[order[position]] == key:
+            return True
+    return False
 
 
 def _remesh(vertices: np.ndarray, faces: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray]:
