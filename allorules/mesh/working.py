@@ -235,11 +235,11 @@ def flip_flat_triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     remesh_botsch projects every vertex back onto the body, and a vertex beside a hole's rim can
     land on one of the rim's edges: a triangle with an angle of 180°, whose cotangent weight is
-    unbounded. A held-out donkey split to 136k vertices had four on its working mesh, and every
-    1,000-mode basis of it took 37 s instead of 3.4 s (docs/working-mesh.md). The edge opposite an
-    angle above :data:`FLAT_ANGLE` is flipped where it lies inside the surface, the edge it becomes
-    is not one already, and the pair's smallest angle grows; a flat triangle at the rim itself
-    stays. (gpytoolbox and libigl's bindings have no edge flip.)"""
+    unbounded. A held-out donkey split to 136k vertices had two on its working mesh (and two more
+    above 170°), and every 1,000-mode basis of it took 37 s; flipped, 4.2 s (docs/working-mesh.md).
+    The edge opposite an angle above :data:`FLAT_ANGLE` is flipped where it lies inside the surface,
+    the edge it becomes is not one already, and the pair's smallest angle grows; a flat triangle at
+    the rim itself stays. (gpytoolbox and libigl's bindings have no edge flip.)"""
     from allorules.mesh.geometry import corner_angles
 
     faces = np.array(faces, dtype=np.int64)

@@ -318,6 +318,7 @@ def ring_flatness(vertices, faces, field, level) -> float:
     eigenvalues = np.sort(np.linalg.eigvalsh((centred * weights[:, None]).T @ centred))[::-1]
     return float(np.sqrt(eigenvalues[0] / max(eigenvalues[1], 1e-30)))
 
+
 def feature_is_flat(vertices, faces, field, reach: float) -> bool:
     """Whether the feature whose tip ``field`` measures from (its geodesic distance; ``reach`` to its
     end's girdle) is an ear-like sheet rather than a horn-like tube: the flatter of its rings at
