@@ -236,8 +236,29 @@ def test_an_ear_flat_near_its_tip_is_flat_and_a_horn_is_not():
     ear = _feature(lambda distance: 1.2 + 4.0 * np.exp(-distance / 0.1))    # reads 2.41 at 0.075, 1.73 at 0.15
     horn = _feature(lambda distance: 1.15)
     assert body_plan.ring_flatness(*ear, 0.15) < body_plan.FLAT_APPENDAGE      # the one ring read before
-    assert body_plan.feature_is_flat(*ear, 1.0)
-    assert not body_plan.feature_is_flat(*horn, 1.0)
+    assert body_plan.feature_flatness(*ear, 1.0) >= body_plan.FLAT_APPENDAGE
+    assert body_plan.feature_flatness(*horn, 1.0) < body_plan.FLAT_APPENDAGE
+
+
+@pytest.mark.parametrize("left,right", [(1.9, 2.3), (1.9, 1.95)])
+def test_twins_straight_across_the_body_are_one_kind(monkeypatch, left, right):
+    """A TOSCA horse's two ears, each near the line between ear and horn, were named one ears and
+    one horns. Twins are read as a pair: here a generated dog's thin horns are made to read flat
+    on one side only (1.9 and 2.3: both ears) or not at all (both horns)."""
+    animal = generate_quadruped("dog", 3000, horn_length=0.3, horn_radius=0.03)
+    flatness = body_plan.feature_flatness
+
+    def one_side_flat(vertices, faces, field, reach):
+        tip = int(np.argmin(field))
+        if np.isin(tip, np.concatenate(horn_vertices(animal))):
+            return left if vertices[tip, 2] > 0 else right
+        return flatness(vertices, faces, field, reach)
+
+    monkeypatch.setattr(body_plan, "feature_flatness", one_side_flat)
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    kinds = [set(np.array(labelled.region_names)[labelled.labels[horn]]) - {"head"} for horn in horn_vertices(animal)]
+    expected = {"ears"} if (left + right) / 2 >= body_plan.FLAT_APPENDAGE else {"horns"}
+    assert kinds == [expected, expected]
 
 
 @pytest.mark.parametrize("angle", [80, 120])

@@ -34,6 +34,7 @@ nearly as they were, and which do not depend on the file's orientation, units or
 """
 from __future__ import annotations
 
+import collections
 import itertools
 from dataclasses import dataclass, field
 
@@ -319,14 +320,14 @@ def ring_flatness(vertices, faces, field, level) -> float:
     return float(np.sqrt(eigenvalues[0] / max(eigenvalues[1], 1e-30)))
 
 
-def feature_is_flat(vertices, faces, field, reach: float) -> bool:
-    """Whether the feature whose tip ``field`` measures from (its geodesic distance; ``reach`` to its
-    end's girdle) is an ear-like sheet rather than a horn-like tube: the flatter of its rings at
-    :data:`FEATURE_RINGS` of its reach reads at least :data:`FLAT_APPENDAGE`. An ear is flattest
-    near its tip, and one ring alone read differently at two tessellations of one animal (a game
-    donkey's ears 2.6 and 2.6 as it comes, 2.36 and 1.87 split to 136k vertices, one then taken for
-    a horn; half-way to that ring 3.4 and 2.3-2.5); the Princeton cow 381's horns read 1.05-1.29 at both."""
-    return max(ring_flatness(vertices, faces, field, share * reach) for share in FEATURE_RINGS) >= FLAT_APPENDAGE
+def feature_flatness(vertices, faces, field, reach: float) -> float:
+    """How flat the feature whose tip ``field`` measures from is (its geodesic distance; ``reach`` to
+    its end's girdle): the flatter of its rings at :data:`FEATURE_RINGS` of its reach; an ear-like
+    sheet from :data:`FLAT_APPENDAGE` on. An ear is flattest near its tip, and one ring alone read
+    differently at two tessellations of one animal (a game donkey's ears 2.6 and 2.6 as it comes,
+    2.36 and 1.87 split to 136k vertices, one then taken for a horn; half-way to that ring 3.4 and
+    2.3-2.5); the Princeton cow 381's horns read 1.05-1.29 at both."""
+    return max(ring_flatness(vertices, faces, field, share * reach) for share in FEATURE_RINGS)
 
 
 @dataclass
@@ -751,7 +752,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     # between them (a dog's long horns: 0.74 and 0.30), so their prominence can differ; then they
     # are told from a nose and a bump behind it (alike in girth too) by lying across the body, as
     # the pair's leg tops do.
-    mirror_pairs, twinned = [], set()
+    mirror_pairs, twinned, across_pairs = [], set(), []
     for t1, t2 in itertools.combinations(tips, 2):
         if min(persistence[t1], persistence[t2]) < MIRROR_PERSISTENCE:
             continue
@@ -762,7 +763,9 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
                         or (across and min(ring[t1], ring[t2]) > MIRROR_RING * max(ring[t1], ring[t2])))
         if placed_alike and shaped_alike:
             mirror_pairs.append((t1, t2))
-            twinned |= {t1, t2} if across else set()
+            if across:
+                twinned |= {t1, t2}
+                across_pairs.append((t1, t2))
     # The main tip lies on the animal's plane of symmetry: of the tips that are no appendage, the
     # most prominent without a twin straight across the body from it (a horn has one, a nose none:
     # a dog's long horns were taken for its nose). A pair not straight across (the bull 386's ear
@@ -788,11 +791,19 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     features = {}
     beside = {t for t in tips if main_tip is not None
               and np.linalg.norm(vertices[t] - vertices[main_tip]) < MUZZLE_SHARE * reach[main_tip]}
-    for t in set([t for t in tips if appendage[t]] + [t for pair_ in mirror_pairs for t in pair_]):
-        if t != main_tip and t not in beside:
-            flat = feature_is_flat(vertices, faces, distance[t], reach[t])
-            thin = ring[t] < APPENDAGE_RING * widest
-            features[t] = "thin" if thin and not flat else "flat"
+    chosen = [t for t in set([t for t in tips if appendage[t]] + [t for pair_ in mirror_pairs for t in pair_])
+              if t != main_tip and t not in beside]
+    flatness = {t: feature_flatness(vertices, faces, distance[t], reach[t]) for t in chosen}
+    girth = {t: ring[t] / widest if widest > 0 else 1.0 for t in chosen}
+    # Twins straight across the body are one kind, read as a pair: a TOSCA horse's two ears, each
+    # near both lines, were named one ears and one horns.
+    partners = collections.Counter(t for pair_ in across_pairs for t in pair_)
+    for t1, t2 in across_pairs:
+        if t1 in flatness and t2 in flatness and partners[t1] == partners[t2] == 1:
+            flatness[t1] = flatness[t2] = 0.5 * (flatness[t1] + flatness[t2])
+            girth[t1] = girth[t2] = 0.5 * (girth[t1] + girth[t2])
+    for t in chosen:
+        features[t] = "thin" if girth[t] < APPENDAGE_RING and flatness[t] < FLAT_APPENDAGE else "flat"
     return End(tuple(pair), girdle, centre, region, area, tips, main_tip, mirror_pairs, thickness, prominence,
                prominent_tip, features)
 
