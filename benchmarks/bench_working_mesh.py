@@ -7,8 +7,9 @@ a run prepares it, split at its edges' midpoints until it has at least each size
 surface, finer), and made into a working mesh (default size). Printed per mesh and size: the
 working mesh's vertices, the holes before and after, its largest angle (180°: a flat triangle), its
 smallest angle, the first percentile of its triangles' smallest angles, the share of triangles
-under 10°, and the time of one cold 1,000-mode basis on it. To compare two versions of the code side by side, run this file twice at
-once with ``PYTHONPATH`` pointing at each (the angles are trimesh's, so that any version runs it). Record results in docs/benchmarks.md.
+under 10°, and the time of one cold 1,000-mode basis on it. To compare two versions of the code
+side by side, run this file twice at once with ``PYTHONPATH`` pointing at each (the largest angle
+is trimesh's, so that any version runs it). Record results in docs/benchmarks.md.
 """
 from __future__ import annotations
 

@@ -241,6 +241,7 @@ def flip_flat_triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     the edge it becomes is not one already, and the pair's smallest angle grows; a flat triangle at
     the rim itself stays. (gpytoolbox and libigl's bindings have no edge flip.)"""
     from allorules.mesh.geometry import corner_angles
+    from allorules.mesh.topology import directed_edges
 
     faces = np.array(faces, dtype=np.int64)
     count = int(faces.max(initial=-1)) + 1
@@ -249,21 +250,28 @@ def flip_flat_triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         flat = np.flatnonzero(angles.max(axis=1) > FLAT_ANGLE)
         if not len(flat):
             break
-        # directed edge (a, b) of face i at row 3 i + k: a = faces[i, k], b = faces[i, k + 1]
-        keys = (faces * count + np.roll(faces, -1, axis=1)).ravel()
+        # row k·F + i: face i's k-th edge as it walks it, one integer key per directed edge
+        edges = directed_edges(faces)
+        keys = edges[:, 0] * count + edges[:, 1]
         order = np.argsort(keys)
+
+        def row_of(a: int, b: int) -> int | None:
+            """The row of the directed edge (a, b), or None when no face walks it."""
+            position = np.searchsorted(keys, a * count + b, sorter=order)
+            return int(order[position]) if position < len(keys) and keys[order[position]] == a * count + b else None
+
         touched, created = set(), set()       # faces changed and edges made in this pass (not in keys)
         for i in flat:
             corner = int(np.argmax(angles[i]))
-            apex, a, b = faces[i, corner], faces[i, (corner + 1) % 3], faces[i, (corner + 2) % 3]
-            position = np.searchsorted(keys, b * count + a, sorter=order)   # the face across (a, b) walks (b, a)
-            if position == len(keys) or keys[order[position]] != b * count + a:
-                continue                                                   # (a, b) is on a rim
-            j = int(order[position]) // 3
-            other = int(faces[j][(int(order[position]) % 3 + 2) % 3])
-            diagonal = frozenset((int(apex), other))
+            apex, a, b = (int(faces[i, (corner + k) % 3]) for k in range(3))
+            across = row_of(b, a)                                   # the face across (a, b) walks (b, a)
+            if across is None:
+                continue                                            # (a, b) is on a rim
+            j, k = across % len(faces), across // len(faces)
+            other = int(faces[j, (k + 2) % 3])
+            diagonal = frozenset((apex, other))
             if (i in touched or j in touched or other == apex or diagonal in created
-                    or _has_edge(keys, order, count, apex, other)):
+                    or row_of(apex, other) is not None or row_of(other, apex) is not None):
                 continue
             pair = np.array([[apex, a, other], [apex, other, b]])
             if corner_angles(vertices, pair).min() <= angles[[i, j]].min():
@@ -274,15 +282,6 @@ def flip_flat_triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         if not created:
             break
     return faces
-
-
-def _has_edge(keys: np.ndarray, order: np.ndarray, count: int, a: int, b: int) -> bool:
-    """Whether a face walks (a, b) or (b, a)."""
-    for key in (a * count + b, b * count + a):
-        position = np.searchsorted(keys, key, sorter=order)
-        if position < len(keys) and keys[order[position]] == key:
-            return True
-    return False
 
 
 def _remesh(vertices: np.ndarray, faces: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray]:

@@ -752,7 +752,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     # between them (a dog's long horns: 0.74 and 0.30), so their prominence can differ; then they
     # are told from a nose and a bump behind it (alike in girth too) by lying across the body, as
     # the pair's leg tops do.
-    mirror_pairs, twinned, across_pairs = [], set(), []
+    mirror_pairs, across_pairs = [], []
     for t1, t2 in itertools.combinations(tips, 2):
         if min(persistence[t1], persistence[t2]) < MIRROR_PERSISTENCE:
             continue
@@ -764,8 +764,8 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
         if placed_alike and shaped_alike:
             mirror_pairs.append((t1, t2))
             if across:
-                twinned |= {t1, t2}
                 across_pairs.append((t1, t2))
+    partners = collections.Counter(t for pair_ in across_pairs for t in pair_)    # the tips with a twin across
     # The main tip lies on the animal's plane of symmetry: of the tips that are no appendage, the
     # most prominent without a twin straight across the body from it (a horn has one, a nose none:
     # a dog's long horns were taken for its nose). A pair not straight across (the bull 386's ear
@@ -773,7 +773,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     main_tip = None
     if tips:
         plain = [t for t in tips if not appendage[t]] or tips
-        main_tip = max([t for t in plain if t not in twinned] or plain, key=lambda t: persistence[t])
+        main_tip = max([t for t in plain if t not in partners] or plain, key=lambda t: persistence[t])
     # How thick the end's protrusion gets part-way along it: a tail stays thin, a head does not.
     # Measured from the main tip unless that is a faint bump (nothing sticks out there), then from
     # the most prominent tip (the realistic elephant's tail, a flat sheet taken for an appendage:
@@ -797,7 +797,6 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
     girth = {t: ring[t] / widest if widest > 0 else 1.0 for t in chosen}
     # Twins straight across the body are one kind, read as a pair: a TOSCA horse's two ears, each
     # near both lines, were named one ears and one horns.
-    partners = collections.Counter(t for pair_ in across_pairs for t in pair_)
     for t1, t2 in across_pairs:
         if t1 in flatness and t2 in flatness and partners[t1] == partners[t2] == 1:
             flatness[t1] = flatness[t2] = 0.5 * (flatness[t1] + flatness[t2])
