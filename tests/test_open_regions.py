@@ -126,3 +126,21 @@ def test_appendages_are_kept_apart_when_held_by_their_shape_or_named(tmp_path):
     assert wanted_regions(soft) == default[:6]
     named = load_ruleset(_write(tmp_path, "extends: quadruped\nopen_regions:\n  hold: soft\n  regions: {tail: isometric}\n"))
     assert wanted_regions(named) == default[:6] + ("tail",)
+
+
+def test_the_terminal_says_what_each_open_region_reached():
+    from allorules.cli.scale import open_regions_line
+    from allorules.solve.open_regions import OpenRegionOutcome
+
+    def outcome(region, measure, achieved, held=True):
+        return OpenRegionOutcome(region, "isometric", measure, 1 / 3 if measure == "length" else 1.0, achieved, held,
+                                 0.02, "shape" if held else None)
+
+    line = open_regions_line([outcome("neck", "length", 0.334), outcome("neck", "mass", 0.965),
+                              outcome("tail", "length", None), outcome("tail", "mass", 1.0),
+                              outcome("ears", "length", 0.333), outcome("ears", "mass", 1.001),
+                              outcome("horns", "length", 0.5, held=False), outcome("horns", "mass", 1.5, held=False)])
+    assert line.startswith("open regions, length / mass exponents (isometric 0.333 / 1.000")
+    # a held region beyond the tolerance, or not measured, is marked; one within it or not held is not
+    assert "neck 0.334 / 0.965 NO" in line and "tail - / 1.000 NO" in line
+    assert "ears 0.333 / 1.001," in line and line.endswith("horns 0.500 / 1.500")

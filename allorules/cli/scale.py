@@ -359,7 +359,27 @@ def format_table(result) -> str:
                      f"{100 * bend:+.1f}% of a leg's length, a leg's fold opened or closed by up to {fold:.1f}°, girth "
                      f"changed unevenly along a leg by up to {100 * spread:.0f}%, a leg's shape changed by up to "
                      f"{100 * shape:.0f}% of its size beyond a stretch (not rules; see the report's posture)")
+    if result.open_regions:
+        lines.append(open_regions_line(result.open_regions))
     return "\n".join(lines)
+
+
+def open_regions_line(outcomes) -> str:
+    """What the regions no rule measures reached, one line: each open region's exponents (length,
+    mass, ...) against isometric, ``NO`` after a region held isometric that strayed beyond the
+    tolerance (or could not be measured), ``-`` for a measure that could not be measured."""
+    measures = list(dict.fromkeys(outcome.measure for outcome in outcomes))
+    isometric = {outcome.measure: outcome.isometric_exponent for outcome in outcomes}
+    tolerance = max(outcome.tolerance for outcome in outcomes)
+    parts = []
+    for region in dict.fromkeys(outcome.region for outcome in outcomes):
+        mine = {outcome.measure: outcome for outcome in outcomes if outcome.region == region}
+        values = " / ".join("-" if name not in mine or mine[name].achieved_exponent is None
+                            else f"{mine[name].achieved_exponent:.3f}" for name in measures)
+        parts.append(f"{region} {values}" + ("" if all(outcome.met for outcome in mine.values()) else " NO"))
+    return (f"open regions, {' / '.join(measures)} exponents (isometric "
+            f"{' / '.join(f'{isometric[name]:.3f}' for name in measures)}; NO: held isometric and beyond "
+            f"±{tolerance:g}): " + ", ".join(parts))
 
 
 def global_summary(output: Path, report: dict) -> str:
