@@ -3,6 +3,7 @@ truth), the head/tail cues one by one, refusals, hand-marked real meshes, region
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -530,10 +531,10 @@ def test_each_cue_points_at_the_head_on_generated_animals(posed, preset, pose, m
     assert decision.cues["features"] == 0.0
 
 
-def _end(area, thickness, mirror=False, protrudes=True):
+def _end(area, thickness, mirror=False, protrudes=True, toes=None):
     return body_plan.End(pair=(0, 1), girdle=0, centre=np.zeros(3), region=np.zeros(1, dtype=bool), area=area,
                          tips=[2], main_tip=2, mirror_pairs=[(3, 4)] if mirror else [], thickness=thickness,
-                         prominence=1.0 if protrudes else 0.0)
+                         prominence=1.0 if protrudes else 0.0, toes=toes)
 
 
 def test_cues_that_disagree_refuse_instead_of_guessing():
@@ -547,6 +548,57 @@ def test_cues_that_disagree_refuse_instead_of_guessing():
     # agreeing cues decide, and the user's --forward overrides them
     decision = body_plan.decide_head(_end(2.0, 0.4, mirror=True), _end(1.0, 0.1))
     assert decision.head.area == 2.0 and decision.margin > 1.5
+
+
+def test_toes_are_a_weak_cue_that_can_be_the_second_to_agree():
+    # a fox: its bushy tail as heavy and as thick as its head, its ears at the second end
+    fox = (_end(1.05, 0.30), _end(1.0, 0.25, mirror=True))
+    with pytest.raises(SegmentationError, match="at least two"):
+        body_plan.decide_head(*fox)
+    # standing, its paws reach 2 leg radii towards its head: the second end
+    decision = body_plan.decide_head(*(replace(end, toes=toes) for end, toes in zip(fox, (-2.0, 2.0))))
+    assert decision.head is not fox[0] and decision.head.mirror_pairs
+    assert decision.cues["toes"] == pytest.approx(body_plan.TOES_CUE)
+    # toes that barely reach (a generated foot, a cartoon's stub) say nothing
+    faint = [replace(end, toes=toes) for end, toes in zip(fox, (-0.4, 0.4))]
+    with pytest.raises(SegmentationError, match="at least two"):
+        body_plan.decide_head(*faint)
+    # alone they never decide, and against two strong cues they do not outweigh them
+    with pytest.raises(SegmentationError, match="cannot tell the head from the tail"):
+        body_plan.decide_head(_end(1.0, 0.2, toes=2.0), _end(1.0, 0.2, toes=-2.0))
+    decision = body_plan.decide_head(_end(2.0, 0.4, mirror=True, toes=-1.0), _end(1.0, 0.1, toes=1.0))
+    assert decision.head.area == 2.0 and decision.cues["toes"] < 0
+
+
+def _foot(reach: float):
+    """A vertical leg (a capped cylinder of radius 1 from z = 0 to 10) whose tip is drawn out by
+    ``reach`` along +x (a toe), as (vertices, faces, tip)."""
+    import trimesh
+
+    leg = trimesh.creation.capsule(height=10.0, radius=1.0, count=[24, 24])
+    vertices = np.array(leg.vertices)
+    vertices[:, 2] += 6.0
+    low = vertices[:, 2] < 1.0                       # the lower cap: a paw pushed forward
+    vertices[low, 0] += reach * (1.0 - vertices[low, 2])
+    tip = int(np.argmin(vertices[:, 2] - 1e-3 * vertices[:, 0]))
+    return vertices, np.array(leg.faces), tip
+
+
+@pytest.mark.parametrize("reach", [0.0, 1.5])
+def test_a_toe_reaches_forward_of_its_leg(reach):
+    from allorules.mesh.topology import vertex_graph
+
+    vertices, faces, tip = _foot(reach)
+    field = body_plan.geodesic_fields(vertex_graph(vertices, faces), [tip])[tip]
+    leg = np.ones(len(vertices), dtype=bool)
+    up, forward = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    ahead = body_plan._toe_reach(vertices, faces, field, tip, leg, up, forward)
+    behind = body_plan._toe_reach(vertices, faces, field, tip, leg, up, -forward)
+    assert ahead == pytest.approx(-behind)
+    if reach == 0.0:        # a round foot straight under its leg: nothing to read
+        assert abs(ahead) < 0.2
+    else:                   # drawn forward by 1.5 radii
+        assert ahead > body_plan.TOES_CLEAR * 0.8
 
 
 def test_a_constructed_animal_whose_ends_look_alike_is_refused():

@@ -28,7 +28,10 @@ nearly as they were, and which do not depend on the file's orientation, units or
    * ``thickness``: the end protrusion's girth part-way along it, against the torso's (a tail is
      thin; a head, even a cartoon's, is not);
    * ``presence``: an end with a prominent protrusion against an end with none (tails can be
-     missing), graded by the protrusion's persistence (:attr:`End.presence`).
+     missing), graded by the protrusion's persistence (:attr:`End.presence`);
+   * ``toes``: on an animal standing on its feet, paws and hooves reach forward of their legs
+     (:func:`_toe_reach`); a weak cue (at most ``TOES_CUE``), silent below ``TOES_FAINT`` radii (a
+     fox's bushy tail is as thick and as heavy as its head: its ears and toes tell them apart).
    The sum decides; it is refused when it is small, when fewer than two cues speak for it, or
    when a strong cue disagrees with it.
 """
@@ -36,7 +39,7 @@ from __future__ import annotations
 
 import collections
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sparse
@@ -105,6 +108,11 @@ AGREEING_CUE = 0.25            # at least two cues this strong must speak for th
 PRESENCE_FAINT = 0.04          # an end's most prominent tip at or below this: nothing sticks out
 PRESENCE_FULL = 0.16           # ... at or above this: something surely does (the horse 387's stub of a
                                # tail is 0.075 as it comes, 0.084 Loop-subdivided: a step there refused it)
+TOE_RING = 0.25                # a foot's toe is read against its leg's ring this share of the leg up from its tip
+TOE_LIMIT = 3.0                # radii: a foot's reach counts up to this (one long foot does not outvote three)
+TOES_FAINT = 0.5               # the four feet's mean reach (radii) up to which the toes say nothing
+TOES_CLEAR = 1.5               # ... from which they say all they can: TOES_CUE
+TOES_CUE = 0.5                 # a weak cue: it can be the second to agree, and vetoes only at its clearest
 
 BY_HAND = ("a labels file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a "
            "merge file")
@@ -585,6 +593,7 @@ class End:
     prominence: float = 0.0     # persistence of its most prominent tip (0 without tips)
     prominent_tip: int | None = None   # that tip (a pig's curly tail, thinner than a bump on its rump beside it)
     features: dict[int, str] = field(default_factory=dict)   # tip → "flat" (ear-like) or "thin" (horn-like)
+    toes: float | None = None   # how far the pair's toes reach towards this end, in leg radii (standing only)
 
     @property
     def protrudes(self) -> bool:
@@ -690,8 +699,29 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
         region = body & ((sides[k] & (owner != 1 - k)) | (owner == k))
         across = leg_tops[pair[0]] - leg_tops[pair[1]]
         lateral = across / max(np.linalg.norm(across), 1e-300)
-        ends.append(_read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet, lateral))
+        end = _read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet, lateral)
+        if ground is not None:   # toes say which way an animal stands, not which way a leg swings
+            towards = axis if k == 0 else -axis
+            end = replace(end, toes=float(np.mean([_toe_reach(vertices, faces, extremities.distance[int(foot)], int(foot),
+                                                              legs == foot, ground, towards) for foot in pair])))
+        ends.append(end)
     return ends[0], ends[1]
+
+
+def _toe_reach(vertices, faces, field, foot: int, leg: np.ndarray, ground: np.ndarray, towards: np.ndarray) -> float:
+    """How far a foot's tip (``foot``; ``field`` measures from it) reaches along ``towards`` beyond its leg,
+    level (⟂ ``ground``), in radii of the leg's ring TOE_RING of its length up from the tip, within
+    ±TOE_LIMIT: paws and hooves point forward (of 36 animals standing, shared and held-out, 32 read
+    0.37-2.8 radii towards the head, four under 0.3 either way; the generator's feet, with no toes,
+    under 0.2)."""
+    level = TOE_RING * float(field[leg].max(initial=0.0))
+    centre = ring_centre(vertices, faces, field, level)
+    radius = _ring_length(vertices, faces, field, level) / (2.0 * np.pi)
+    if centre is None or not radius > 0:
+        return 0.0
+    reach = vertices[foot] - centre
+    reach = reach - (reach @ ground) * ground
+    return float(np.clip(reach @ towards / radius, -TOE_LIMIT, TOE_LIMIT))
 
 
 def seated_share(chord: np.ndarray, up: np.ndarray) -> float:
@@ -833,6 +863,10 @@ def decide_head(first: End, second: End, forward_hint=None, vertices=None) -> En
     else:
         cues["thickness"] = 0.0
     cues["presence"] = first.presence - second.presence
+    if first.toes is not None and second.toes is not None:
+        reach = 0.5 * (first.toes - second.toes)    # the four feet's mean reach towards the first end
+        cues["toes"] = float(TOES_CUE * np.sign(reach) * np.clip((abs(reach) - TOES_FAINT) / (TOES_CLEAR - TOES_FAINT),
+                                                                 0.0, 1.0))
     total = sum(cues.values())
     if forward_hint is not None and vertices is not None:
         along = (first.centre - second.centre) @ np.asarray(forward_hint, dtype=float)

@@ -723,6 +723,7 @@ TUBE_LENGTH = 3.0         # a tail hanging against the rump is its tube, when th
 APPENDAGE_SHARE = 0.4     # an ear or horn cut larger than this share of the head is not one
 TRUNK_SHARE = 0.7         # nor a trunk larger than this share (the head is more than its nose)
 TAIL_SHARE = 0.3          # nor a tail larger than this share of the torso
+TAIL_TUBE_SHARE = 0.5     # ... but a tail its rings follow as a tube up to this (a fox's bushy tail: 0.39)
 TAIL_ROOT_SPREAD = 2.0    # a tail's root reaches at most this many of its radii from its axis
 
 
@@ -794,6 +795,7 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
             if region is None:
                 continue
             region &= np.isin(labels, within)
+            largest = TAIL_TUBE_SHARE * torso_area
         if not region.any() or (largest is not None and mass[region].sum() > largest):
             continue
         labels[region] = index
