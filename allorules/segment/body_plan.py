@@ -30,8 +30,9 @@ nearly as they were, and which do not depend on the file's orientation, units or
    * ``presence``: an end with a prominent protrusion against an end with none (tails can be
      missing), graded by the protrusion's persistence (:attr:`End.presence`);
    * ``toes``: on an animal standing on its feet, paws and hooves reach forward of their legs
-     (:func:`_toe_reach`); a weak cue (at most ``TOES_CUE``), silent below ``TOES_FAINT`` radii (a
-     fox's bushy tail is as thick and as heavy as its head: its ears and toes tell them apart).
+     (:func:`_toe_reach`); a weak cue (at most ``TOES_CUE``), silent below ``TOES_FAINT`` radii and
+     never a veto (a fox's bushy tail is as thick and as heavy as its head: its ears and toes tell
+     them apart).
    The sum decides; it is refused when it is small, when fewer than two cues speak for it, or
    when a strong cue disagrees with it.
 """
@@ -110,9 +111,10 @@ PRESENCE_FULL = 0.16           # ... at or above this: something surely does (th
                                # tail is 0.075 as it comes, 0.084 Loop-subdivided: a step there refused it)
 TOE_RING = 0.25                # a foot's toe is read against its leg's ring this share of the leg up from its tip
 TOE_LIMIT = 3.0                # radii: a foot's reach counts up to this (one long foot does not outvote three)
+TOE_UPRIGHT = 45.0             # degrees: toes are read only where every leg's lower half stands this near upright
 TOES_FAINT = 0.5               # the four feet's mean reach (radii) up to which the toes say nothing
 TOES_CLEAR = 1.5               # ... from which they say all they can: TOES_CUE
-TOES_CUE = 0.5                 # a weak cue: it can be the second to agree, and vetoes only at its clearest
+TOES_CUE = 0.5                 # a weak cue: it can be the second to agree, never refuse the others
 
 BY_HAND = ("a labels file (--segmentation FILE), or allorules segment MESH --patches 24 --png patches.png and a "
            "merge file")
@@ -700,25 +702,33 @@ def read_ends(extremities: Extremities, top, graph, legs, leg_tops, first_pair, 
         across = leg_tops[pair[0]] - leg_tops[pair[1]]
         lateral = across / max(np.linalg.norm(across), 1e-300)
         end = _read_end(extremities, top, pair, girdles[k], centres[k], region, vertices, faces, mass, feet, lateral)
-        if ground is not None:   # toes say which way an animal stands, not which way a leg swings
+        if ground is not None:   # toes say which way an animal stands on its feet, not how a leg folds
             towards = axis if k == 0 else -axis
-            end = replace(end, toes=float(np.mean([_toe_reach(vertices, faces, extremities.distance[int(foot)], int(foot),
-                                                              legs == foot, ground, towards) for foot in pair])))
+            reaches = [_toe_reach(vertices, faces, extremities.distance[int(foot)], int(foot), legs == foot, ground,
+                                  towards) for foot in pair]
+            if all(reach is not None for reach in reaches):
+                end = replace(end, toes=float(np.mean(reaches)))
         ends.append(end)
     return ends[0], ends[1]
 
 
-def _toe_reach(vertices, faces, field, foot: int, leg: np.ndarray, ground: np.ndarray, towards: np.ndarray) -> float:
+def _toe_reach(vertices, faces, field, foot: int, leg: np.ndarray, ground: np.ndarray,
+               towards: np.ndarray) -> float | None:
     """How far a foot's tip (``foot``; ``field`` measures from it) reaches along ``towards`` beyond its leg,
     level (⟂ ``ground``), in radii of the leg's ring TOE_RING of its length up from the tip, within
     ±TOE_LIMIT: paws and hooves point forward (of 36 animals standing, shared and held-out, 32 read
     0.37-2.8 radii towards the head, four under 0.3 either way; the generator's feet, with no toes,
-    under 0.2)."""
-    level = TOE_RING * float(field[leg].max(initial=0.0))
-    centre = ring_centre(vertices, faces, field, level)
-    radius = _ring_length(vertices, faces, field, level) / (2.0 * np.pi)
-    if centre is None or not radius > 0:
-        return 0.0
+    under 0.2). None where the leg's lower half does not stand within TOE_UPRIGHT of the ground's
+    normal (a generated horse lying on its folded legs read 1.5 radii the wrong way)."""
+    length = float(field[leg].max(initial=0.0))
+    centre = ring_centre(vertices, faces, field, TOE_RING * length)
+    above = ring_centre(vertices, faces, field, 0.5 * length)
+    radius = _ring_length(vertices, faces, field, TOE_RING * length) / (2.0 * np.pi)
+    if centre is None or above is None or not radius > 0:
+        return None
+    shank = above - centre
+    if not shank @ ground >= np.cos(np.radians(TOE_UPRIGHT)) * np.linalg.norm(shank):
+        return None
     reach = vertices[foot] - centre
     reach = reach - (reach @ ground) * ground
     return float(np.clip(reach @ towards / radius, -TOE_LIMIT, TOE_LIMIT))
@@ -876,7 +886,8 @@ def decide_head(first: End, second: End, forward_hint=None, vertices=None) -> En
             raise SegmentationError(
                 f"cannot tell the head from the tail (cues {_cue_text(cues)}, summed {abs(total):.2f} < "
                 f"{HEAD_TAIL_MARGIN}); {SETTLE}")
-        against = [name for name, value in cues.items() if value * total < 0 and abs(value) >= STRONG_CUE]
+        against = [name for name, value in cues.items()
+                   if value * total < 0 and abs(value) >= STRONG_CUE and name != "toes"]   # a weak cue
         agreeing = [name for name, value in cues.items() if value * total > 0 and abs(value) >= AGREEING_CUE]
         if len(agreeing) < 2:
             raise SegmentationError(
