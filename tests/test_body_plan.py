@@ -572,8 +572,8 @@ def test_toes_are_a_weak_cue_that_can_be_the_second_to_agree():
 
 
 def _foot(reach: float):
-    """A vertical leg (a capped cylinder of radius 1 from z = 0 to 10) whose tip is drawn out by
-    ``reach`` along +x (a toe), as (vertices, faces, tip)."""
+    """A vertical leg (a capsule of radius 1 standing on z = 0, 12 tall) whose lower cap is drawn
+    out by ``reach`` along +x at its bottom (a toe), as (vertices, faces, tip)."""
     import trimesh
 
     leg = trimesh.creation.capsule(height=10.0, radius=1.0, count=[24, 24])
