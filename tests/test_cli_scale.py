@@ -81,3 +81,23 @@ def test_measuring_with_a_labels_file_measures_as_the_labeller_did(tmp_path, cap
         assert from_file["frame"][direction] == pytest.approx(automatic["frame"][direction])
     for ours, theirs in zip(from_file["rules"], automatic["rules"]):
         assert ours["value"] == pytest.approx(theirs["value"], rel=1e-9), ours["id"]
+
+
+def test_a_run_missed_on_a_remeshed_body_says_to_try_a_coarser_working_mesh():
+    from argparse import Namespace
+    from types import SimpleNamespace
+
+    from allorules.cli.scale import COARSER_WORKING, coarser_working_hint
+
+    def working(method, target, vertices=7745):
+        return SimpleNamespace(mesh=SimpleNamespace(method=method, is_source=method == "as-is", target_vertices=target,
+                                                    vertices=np.zeros((vertices, 3))))
+
+    default = Namespace(working_vertices=None)
+    hint = coarser_working_hint(working("decimated+remeshed", 8000), default)
+    assert f"--working-vertices {COARSER_WORKING}" in hint and "7,745 vertices" in hint
+    # nothing to say: the body itself, a size the user chose, one already as coarse, no working mesh
+    assert coarser_working_hint(working("as-is", 8000), default) == ""
+    assert coarser_working_hint(working("remeshed", 8000), Namespace(working_vertices=8000)) == ""
+    assert coarser_working_hint(working("remeshed", COARSER_WORKING), default) == ""
+    assert coarser_working_hint(None, default) == ""
