@@ -288,16 +288,20 @@ COARSER_WORKING = 4000   # docs/benchmarks.md, "The working mesh's size, measure
 
 
 def coarser_working_hint(working, arguments: argparse.Namespace) -> str:
-    """For a run that missed on the user's body remeshed at the default size: the coarser working
-    mesh to try. At 4,000 vertices every run of eight animals at 200k converged, at ×2 and ×0.5,
-    a held-out donkey's ×2 among them, refused at 8,000 (its outputs, measured at full resolution,
-    a little further off: docs/working-mesh.md)."""
+    """For a run that missed on the user's body remeshed at the default size: another working size
+    to try, a coarser one (faster). Where a run ends turns on its working mesh: at 4,000 vertices
+    every run of eight animals at 200k converged, at ×2 and ×0.5, a held-out donkey's ×2 among them,
+    which 8,000 refuses; the same donkey split finer (136k) was refused at 4,000 too and converged
+    at 2,500 (docs/benchmarks.md, "The working mesh's size, measured")."""
+    from allorules.mesh.working import MIN_WORKING_VERTICES
+
     mesh = None if working is None else working.mesh
     if (mesh is None or mesh.is_source or mesh.method == "recorded" or arguments.working_vertices is not None
             or mesh.target_vertices <= COARSER_WORKING):
         return ""
-    return (f"; the run worked on your mesh remeshed to {len(mesh.vertices):,} vertices: a coarser working mesh "
-            f"(--working-vertices {COARSER_WORKING}) may converge where this one did not")
+    return (f"; the run worked on your mesh remeshed to {len(mesh.vertices):,} vertices, and where it ends turns on "
+            f"that size: a coarser working mesh (--working-vertices {COARSER_WORKING}, or down to "
+            f"{MIN_WORKING_VERTICES}) may converge where this one did not")
 
 
 def _keep_what_a_stopped_run_reached(arguments: argparse.Namespace, output: Path, error: ScalingError) -> None:
