@@ -737,8 +737,8 @@ def _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distan
     tubes: horns); the head tip when it is the end of a tube at least TRUNK_LENGTH radii long (a
     trunk). A cut is kept only within the region it grows from (torso, head), and an ear or horn
     only when it is smaller than APPENDAGE_SHARE of the head, a trunk TRUNK_SHARE of what the ears
-    and horns left of it, a tail TAIL_SHARE of the torso, and only while the body without them is
-    still one piece (:func:`_a_leaf`).
+    and horns left of it, a tail TAIL_SHARE of the torso (its tube alone TAIL_TUBE_SHARE), and only
+    while the body without them is still one piece (:func:`_a_leaf`).
     """
     tail_index, ears_index, horns_index, trunk_index = (ALL_REGIONS.index(name) for name in APPENDAGES)
     cuts = []
