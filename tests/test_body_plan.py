@@ -1165,3 +1165,30 @@ def test_an_appendage_hangs_from_the_body_and_a_band_round_it_does_not():
     assert not _a_leaf(faces, graph, mass, band)
     assert _a_leaf(faces, graph, mass, band & (vertices[:, 0] > 0.3))      # half a band: a leaf
     assert not _a_leaf(faces, graph, mass, band & (vertices[:, 0] > -0.1) | band & (vertices[:, 0] < 0.1))
+
+
+def test_a_cloven_hoof_on_a_short_leg_is_no_head():
+    """A low-poly pig standing, its legs short, was refused as a head taken for a foot: its two
+    toes lay 0.37-0.38 of the leg's length from its heel, over the 0.3 that ears and horns were
+    read beyond. Twins on a head read as a leg lie 0.56-0.95 of it from the nose (above), so a
+    short leg (a capsule 4 tall, radius 1) with a heel and two toes (0.42-0.45 of it) is a leg."""
+    import trimesh
+
+    from allorules.mesh.topology import vertex_graph
+
+    leg = trimesh.creation.capsule(height=2.0, radius=1.0, count=[32, 32])
+    vertices, normals = np.array(leg.vertices) + [0.0, 0.0, 2.0], np.array(leg.vertex_normals)
+    for centre, size, push in (([0.75, 0.45, 0.35], 0.45, 0.8), ([0.75, -0.45, 0.35], 0.45, 0.8),
+                               ([-0.8, 0.0, 0.3], 0.5, 0.6)):          # two toes, a heel
+        bump = np.clip(1.0 - np.linalg.norm(vertices - centre, axis=1) / size, 0.0, None) ** 2
+        vertices = vertices + (push * bump)[:, None] * normals
+    faces = np.array(leg.faces)
+    extremities = body_plan.read_extremities(vertex_graph(vertices, faces), vertex_areas(vertices, faces), vertices,
+                                             faces)
+    heel = min((int(t) for t in extremities.vertices), key=lambda t: vertices[t, 0])
+    length = extremities.distance[heel].max()
+    toes = [t for t in extremities.vertices if vertices[t, 0] > 0.5 and vertices[t, 2] < 1.0]
+    assert len(toes) == 2 and all(0.35 < extremities.distance[heel][t] / length < body_plan.LEG_FEATURE_REACH
+                                  for t in toes)
+    legs = np.full(len(vertices), heel)
+    assert body_plan.head_taken_for_a_leg(extremities, legs, [heel], vertices, faces) is None

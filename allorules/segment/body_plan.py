@@ -92,7 +92,8 @@ MIRROR_RING = 0.6              # twins unlike in prominence: the thinner one's r
 MIRROR_ACROSS = 0.9            # at least this share of the other's, and they lie straight across the body (cosine)
 MIRROR_SPACING = 0.15          # apart by at least this share of their reach (not two toes of one foot)
 MUZZLE_SHARE = 0.15            # a tip nearer the main tip than this share of its reach (in space) is its end's, no feature
-LEG_FEATURE_REACH = 0.3        # a mirror pair on a "leg" this share of its length or more from its "foot" is a head's
+LEG_FEATURE_REACH = 0.5        # a mirror pair on a "leg" this share of its length or more from its "foot" is a head's
+                               # (ears, horns: 0.56-0.95; a short leg's cloven hoof: 0.37-0.45)
 
 # How far an animal sits, from the tilt of the chord between its girdles: level (standing) up to
 # the first angle, sitting from the second, smoothstep between (:func:`seated_share`). Shared
