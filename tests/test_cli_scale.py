@@ -83,21 +83,15 @@ def test_measuring_with_a_labels_file_measures_as_the_labeller_did(tmp_path, cap
         assert ours["value"] == pytest.approx(theirs["value"], rel=1e-9), ours["id"]
 
 
-def test_a_run_missed_on_a_remeshed_body_says_to_try_a_coarser_working_mesh():
-    from argparse import Namespace
+def test_a_run_missed_on_coarser_working_meshes_too_says_what_each_missed():
     from types import SimpleNamespace
 
-    from allorules.cli.scale import COARSER_WORKING, coarser_working_hint
+    from allorules.cli.scale import coarser_working_hint
+    from allorules.runs.pipeline import WorkingTry
 
-    def working(method, target, vertices=7745):
-        return SimpleNamespace(mesh=SimpleNamespace(method=method, is_source=method == "as-is", target_vertices=target,
-                                                    vertices=np.zeros((vertices, 3))))
-
-    default = Namespace(working_vertices=None)
-    hint = coarser_working_hint(working("decimated+remeshed", 8000), default)
-    assert f"--working-vertices {COARSER_WORKING}" in hint and "7,745 vertices" in hint
-    # nothing to say: the body itself, a size the user chose, one already as coarse, no working mesh
-    assert coarser_working_hint(working("as-is", 8000), default) == ""
-    assert coarser_working_hint(working("remeshed", 8000), Namespace(working_vertices=8000)) == ""
-    assert coarser_working_hint(working("remeshed", COARSER_WORKING), default) == ""
-    assert coarser_working_hint(None, default) == ""
+    tried = (WorkingTry(3912, "rule 'chest-girth' reached exponent 0.386, target 0.365"), WorkingTry(2466, "mass ×1.95"))
+    hint = coarser_working_hint(SimpleNamespace(also_tried=tried))
+    assert "3,912 vertices: rule 'chest-girth' reached exponent 0.386" in hint and "2,466 vertices: mass ×1.95" in hint
+    # nothing to say: no other working mesh tried, no working mesh
+    assert coarser_working_hint(SimpleNamespace(also_tried=())) == ""
+    assert coarser_working_hint(None) == ""

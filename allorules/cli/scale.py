@@ -278,30 +278,20 @@ def run(arguments: argparse.Namespace) -> int:
             log.warning("%s", message)
         where = f"the mesh was written to {written} (NOT the requested {output})" if written else \
             f"no mesh written (use --keep-unconverged to write it as {unconverged_path(output).name})"
-        raise ScalingError(f"{result_run.missed()}; {where}" + coarser_working_hint(result_run.working, arguments))
+        raise ScalingError(f"{result_run.missed()}; {where}" + coarser_working_hint(result_run.working))
     if written is not None and hasattr(scaling, "ruleset"):
         print(f"wrote {written}")
     return 0
 
 
-COARSER_WORKING = 4000   # docs/benchmarks.md, "The working mesh's size, measured"
-
-
-def coarser_working_hint(working, arguments: argparse.Namespace) -> str:
-    """For a run that missed on the user's body remeshed at the default size: another working size
-    to try, a coarser one (faster). Where a run ends turns on its working mesh: at 4,000 vertices
-    every run of eight animals at 200k converged, at ×2 and ×0.5, a held-out donkey's ×2 among them,
-    which 8,000 refuses; the same donkey split finer (136k) was refused at 4,000 too and converged
-    at 2,500 (docs/benchmarks.md, "The working mesh's size, measured")."""
-    from allorules.mesh.working import MIN_WORKING_VERTICES
-
-    mesh = None if working is None else working.mesh
-    if (mesh is None or mesh.is_source or mesh.method == "recorded" or arguments.working_vertices is not None
-            or mesh.target_vertices <= COARSER_WORKING):
+def coarser_working_hint(working) -> str:
+    """For a run that missed: the coarser working meshes it was made again on, and missed on too
+    (:func:`allorules.runs.pipeline.run` tries them where the default working mesh misses)."""
+    tried = () if working is None else working.also_tried
+    if not tried:
         return ""
-    return (f"; the run worked on your mesh remeshed to {len(mesh.vertices):,} vertices, and where it ends turns on "
-            f"that size: a coarser working mesh (--working-vertices {COARSER_WORKING}, or down to "
-            f"{MIN_WORKING_VERTICES}) may converge where this one did not")
+    return ("; made again on coarser working meshes, it missed there too ("
+            + "; ".join(f"{other.vertices:,} vertices: {other.missed}" for other in tried) + ")")
 
 
 def _keep_what_a_stopped_run_reached(arguments: argparse.Namespace, output: Path, error: ScalingError) -> None:

@@ -193,6 +193,7 @@ class Working:
 
     mesh: WorkingMesh
     binding: Binding | None
+    also_tried: tuple[WorkingTry, ...] = ()   # other working meshes the run missed on (_coarser_working)
 
     def body(self) -> Body:
         return Body(self.mesh.vertices, self.mesh.faces)
@@ -223,7 +224,19 @@ class Working:
         mesh = self.mesh
         return {"method": mesh.method, "vertices": int(len(mesh.vertices)), "target_vertices": int(mesh.target_vertices),
                 "user_vertices": int(mesh.source_vertices), "seconds": round(float(mesh.seconds), 3),
-                "quality": {key: round(float(value), 4) for key, value in mesh.quality.items()}}
+                "quality": {key: round(float(value), 4) for key, value in mesh.quality.items()},
+                "also_tried": [{"vertices": other.vertices, "missed": other.missed} for other in self.also_tried]}
+
+
+@dataclass(frozen=True)
+class WorkingTry:
+    """A working mesh a run missed its targets on (it was made again on a coarser one)."""
+
+    vertices: int
+    missed: str       # the run's first message there
+
+
+COARSER_WORKING = (4000, 2500)   # tried in turn where the default working mesh misses
 
 
 def working(prepared: PreparedMesh, vertices: int | None = None, record: WorkingRecord | None = None) -> Working:
@@ -865,6 +878,10 @@ def run(
     labels_file = Path(labels) if isinstance(labels, (str, Path)) else None
     try:
         result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
+        if not result.converged and ruleset is not None and working_vertices is None:
+            work, body, result = _coarser_working(prepared, work, body, result, scaling, registry=registry, modes=modes,
+                                                  use_cache=use_cache, progress=progress, regions=wanted_regions(ruleset),
+                                                  segmenter=segmenter or ruleset.segmenter, up=up, forward=forward)
     except ScalingError as error:
         if isinstance(error.closest, BiologyScalingResult) and error.run is None:
             # a run that stopped at a step: what it reached, placed, goes with the error, so that a
@@ -873,10 +890,65 @@ def run(
                 reached, placed = place(body, error.closest, placement)
             except AllorulesError:
                 raise error from None       # what stopped the run is what the user is told
-            error.run = Run(prepared, body, scaling, reached, labels_file, placed, None if work.binding is None else work)
+            error.run = Run(prepared, body, scaling, reached, labels_file, placed, _kept(work))
         raise
     result, placed = place(body, result, placement)
-    return Run(prepared, body, scaling, result, labels_file, placed, None if work.binding is None else work)
+    return Run(prepared, body, scaling, result, labels_file, placed, _kept(work))
+
+
+def _kept(work: Working) -> Working | None:
+    """The working mesh a :class:`Run` keeps: none for the body itself, unless it was tried on others."""
+    return None if work.binding is None and not work.also_tried else work
+
+
+def _coarser_working(prepared: PreparedMesh, work: Working, body: Body, result: Result, scaling: RulesetScaling, *,
+                     registry: PluginRegistry, modes: int | None, use_cache: bool, progress: RunProgress | None,
+                     regions: tuple[str, ...], segmenter: SegmenterUse | None, up: np.ndarray | None,
+                     forward: np.ndarray | None) -> tuple[Working, Body, Result]:
+    """A ruleset run that missed on the default working mesh, made again on coarser ones
+    (:data:`COARSER_WORKING`, in turn) until one converges: labelled there by the segmenter as
+    a run at that ``--working-vertices`` is (a segmenter refusing there ends the tries), or with
+    regions the user gave, carried across. Where a run ends turns on the working mesh it solves
+    on: a held-out donkey split to 136k, missed at 8,000 and 4,000, converged at 2,500 labelled
+    there, not with the 8,000's regions carried (docs/working-mesh.md). Not for a working mesh a
+    labels file recorded or a size the user chose. Where every one misses, the default's run is
+    kept. The working mesh kept names the others it was tried on (``also_tried``)."""
+    if work.mesh.method == "recorded":
+        return work, body, result
+    segmented = body.labelling is not None and body.labelling.source.startswith("segmenter")
+    user = work.labels_to_user(body, Body(prepared.vertices, prepared.faces))
+    tries = [WorkingTry(int(len(work.mesh.vertices)), _first_message(result))]
+    for size in COARSER_WORKING:
+        if min(attempt.vertices for attempt in tries) <= size * 1.25:   # hardly coarser: the same run again
+            continue
+        log.warning("the run on a working mesh of %d vertices missed its targets (%s); making it again on a coarser "
+                    "one of about %d vertices, %s", tries[-1].vertices, tries[-1].missed, size,
+                    "labelled there" if segmented else "with your regions")
+        coarser = working(prepared, size)
+        try:
+            coarser_body = (label_working(prepared, coarser, registry=registry, segmenter=segmenter, up=up,
+                                          forward=forward, regions=regions) if segmented
+                            else _framed(fold_regions(coarser.from_user(user), regions), given=True))
+        except SegmentationError as error:   # the regions cannot be told there: the default's run stands
+            tries.append(WorkingTry(int(len(coarser.mesh.vertices)), f"not labelled: {error}"))
+            log.warning("on the coarser working mesh the regions were not found: %s", error)
+            break
+        try:
+            coarser_result = scale(coarser_body, scaling, registry=registry, modes=modes, use_cache=use_cache,
+                                   progress=progress)
+        except ScalingError as error:      # a step stopped there: the default's run stands
+            tries.append(WorkingTry(int(len(coarser.mesh.vertices)), str(error)))
+            log.warning("on the coarser working mesh the run stopped: %s", error)
+            break
+        if coarser_result.converged:
+            log.warning("made again on a working mesh of %d vertices, the run converged", len(coarser.mesh.vertices))
+            return replace(coarser, also_tried=tuple(tries)), coarser_body, coarser_result
+        tries.append(WorkingTry(int(len(coarser.mesh.vertices)), _first_message(coarser_result)))
+    return replace(work, also_tried=tuple(tries[1:])), body, result
+
+
+def _first_message(result: Result) -> str:
+    return result.messages[0] if result.messages else "a target missed"
 
 
 def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveResult:
@@ -896,8 +968,8 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
         saved = save_mesh(path, run.body_vertices(), prepared.faces, input_path=prepared.source_path,
                           overwrite=overwrite)
     if labels is not None:      # the tape as the run put it on its input, and the working mesh it measured on
-        record = None if run.working is None else WorkingRecord.of(run.working.mesh, prepared.vertices, prepared.faces,
-                                                                    run.body.labels)
+        carried = run.working is not None and run.working.binding is not None
+        record = WorkingRecord.of(run.working.mesh, prepared.vertices, prepared.faces, run.body.labels) if carried else None
         write_labels(labels, replace(run.user_body(), tape=heart_girth_tape(run.body)), record)
         log.info("wrote %s: the regions the run measured, which allorules measure reads", labels)
     return saved   # save_mesh has said what it could not carry over (saved.notes), once
