@@ -368,3 +368,20 @@ def test_a_humped_trunk_is_warned_of_and_reported(generated_horse):
     report = quality_report(body, _humped(body, height), intersections=False)
     assert report.as_dict()["trunk_shape_change"] == pytest.approx(trunk_shape_change(body, _humped(body, height)))
     assert "the trunk" in report.summary()
+
+
+def test_the_head_turn_is_the_angle_its_best_similarity_turns(generated_horse):
+    """:func:`head_turn`: 0 for the body scaled and moved, the angle for a head (and neck) nodded
+    about the neck's root, None without a head."""
+    from scipy.spatial.transform import Rotation
+
+    from allorules.measure.quality import head_turn
+
+    body = generated_horse.body()
+    assert head_turn(body, 1.3 * body.vertices + 2.0) == pytest.approx(0.0, abs=1e-4)
+    nodding = body.region_mask("head") | body.region_mask("neck")
+    root = body.vertices[body.region_mask("neck")].min(axis=0)
+    moved = body.vertices.copy()
+    moved[nodding] = (moved[nodding] - root) @ Rotation.from_euler("z", 12, degrees=True).as_matrix().T + root
+    assert head_turn(body, 0.8 * moved) == pytest.approx(12.0, abs=0.5)
+    assert head_turn(Body(body.vertices, body.faces), moved) is None

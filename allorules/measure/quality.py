@@ -12,6 +12,7 @@ JSON-ready dataclass (``as_dict()``), and :func:`quality_report`, which gathers 
 * :func:`small_feature_changes`: each small feature's shape change after the best similarity
   (:mod:`allorules.measure.features`);
 * :func:`leg_stances`: each leg's lean, foot lift and bow (:func:`allorules.measure.limbs.posture_change`);
+* :func:`trunk_shape_change` and :func:`head_turn`: a hump or a sag of the trunk, a head turned;
 * :func:`rule_checks`: per rule of a ruleset run, whether it was ``met`` within the tolerance.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from allorules.body import Body
-from allorules.mesh.geometry import affine_residuals, vertex_areas
+from allorules.mesh.geometry import affine_residuals, similarity_fit, vertex_areas
 
 __all__ = [
     "FlippedFaces",
@@ -322,6 +323,22 @@ def trunk_shape_change(before: Body, after: np.ndarray) -> float | None:
     return float(departure[order[min(covered, len(order) - 1)]] / radius)
 
 
+def head_turn(before: Body, after: np.ndarray) -> float | None:
+    """How far the head of ``after`` (vertex positions on ``before``'s faces) turned, in degrees:
+    the angle of the rotation of its best similarity (area-weighted). An output stands where its
+    input stood, unturned (``allorules.runs.pipeline.place``), so this is a head that nods up or
+    down, or swings aside, when nobody asked for it: a change an artist sees at once (a low-poly
+    giraffe's neck and head once turned 19° back at ×0.5). None without a head."""
+    if before.labels is None or not before.has_region("head"):
+        return None
+    head = before.region_mask("head")
+    if head.sum() < 8:
+        return None
+    areas = vertex_areas(before.vertices, before.faces)[head]
+    _, rotation, _ = similarity_fit(before.vertices[head], np.asarray(after, dtype=float)[head], areas)
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 @dataclass(frozen=True)
 class RuleCheck:
     """A rule over a whole run: target and achieved exponent, and whether it is met."""
@@ -371,6 +388,8 @@ class QualityReport:
     # The trunk's shape change beyond a stretch, in units of its radius (:func:`trunk_shape_change`);
     # None where the body has no chest or abdomen.
     trunk_shape: float | None = None
+    # How far the head turned, in degrees (:func:`head_turn`); None without a head.
+    head_turn: float | None = None
 
     @property
     def worst_feature_change(self) -> float:
@@ -390,6 +409,8 @@ class QualityReport:
         parts.append(f"roughness {self.roughness.rms_degrees:.1f}° (0 for uniform scaling)")
         if self.trunk_shape is not None:
             parts.append(f"the trunk {100 * self.trunk_shape:.0f}% of its radius out of any stretch")
+        if self.head_turn is not None:
+            parts.append(f"the head turned {self.head_turn:.1f}°")
         if self.features:
             parts.append(f"{len(self.features)} small features changed shape by up to "
                          f"{100 * self.worst_feature_change:.0f}% of their size")
@@ -410,6 +431,7 @@ class QualityReport:
             "small_features": [change.as_dict() for change in self.features],
             "worst_feature_change": float(self.worst_feature_change),
             "trunk_shape_change": None if self.trunk_shape is None else float(self.trunk_shape),
+            "head_turn_degrees": None if self.head_turn is None else float(self.head_turn),
             "legs": [leg.as_dict() for leg in self.legs],
             "rules": [rule.as_dict() for rule in self.rules],
         }
@@ -578,4 +600,5 @@ def quality_report(before: Body, after: np.ndarray, *, rules: Iterable | None = 
         legs=stances,
         rules=rule_checks(rules, tolerance) if rules is not None else [],
         trunk_shape=trunk_shape_change(before, after),
+        head_turn=head_turn(before, after),
     )
