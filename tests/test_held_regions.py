@@ -103,7 +103,8 @@ def test_any_deformation_leaves_each_part_its_input_shape_times_k(horse_held):
 
 def test_the_blend_zones_leave_no_tear_at_an_opening(horse_held, monkeypatch):
     """Around every opening vertex the edges' stretches (against the deformed mesh) differ by at
-    most 1.5× (measured: 1.30 with this deformation); the part pasted without zones tears (2.6×)."""
+    most 1.5× (measured: 1.27 with this deformation); the part pasted without zones tears (1.96×;
+    3.5× while the neck turned as Eq. 9 left it, where the chest under it turned less)."""
     body, held = horse_held
     moved = _deformed(body.vertices)
     openings = np.concatenate([part.members[np.concatenate([part.near, part.far]).astype(int)] for part in held.parts])
@@ -111,7 +112,7 @@ def test_the_blend_zones_leave_no_tear_at_an_opening(horse_held, monkeypatch):
     assert jump[openings].max() < 1.5
     monkeypatch.setattr(held_regions, "ZONE", 0.0)
     pasted = hold_regions(body, ("neck", "tail")).apply(moved, K)
-    assert _worst_stretch_jump(moved, pasted, body.faces)[openings].max() > 2.0
+    assert _worst_stretch_jump(moved, pasted, body.faces)[openings].max() > 1.8
 
 
 @pytest.mark.slow
