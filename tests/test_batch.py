@@ -202,6 +202,7 @@ def test_a_jobs_report_keeps_the_outputs_quality_and_the_summary_shows_it(inputs
     row = result.rows[0]
     assert row["flipped_faces"] == 0 and row["self_intersections"] == 0
     assert row["roughness_degrees"] == quality["roughness"]["rms_degrees"]
+    assert row["head_turn_degrees"] == quality["head_turn_degrees"] is not None
     with open(tmp_path / "out" / "summary.csv", newline="") as handle:
         cells = next(csv.DictReader(handle))
     assert cells["flipped_faces"] == "0" and float(cells["roughness_degrees"]) == pytest.approx(row["roughness_degrees"], rel=1e-3)

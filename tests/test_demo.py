@@ -95,6 +95,7 @@ def test_demo_reports(demo):
         flipped = (quality.get("written_flipped_faces") or quality["flipped_faces"])["count"]
         assert f"<td>{run.name}</td><td class=number>{flipped}</td>" in html
         assert trunk is not None and 0.0 <= trunk < 1.0
+        assert "head turned (°)" in html and 0.0 <= quality["head_turn_degrees"] < 10.0   # the generated horse has a head
 
 
 def test_named_folder_with_files_is_refused(tmp_path):

@@ -542,7 +542,8 @@ def _run_pool(pending: Sequence[Job], output: Path, fingerprints: dict, workers:
 
 SUMMARY_COLUMNS = ("job", "mesh", "ruleset", "ratio", "status", "mass_ratio", "stress_ratio", "converged",
                    "worst_rule", "worst_rule_residual", "flipped_faces", "self_intersections", "roughness_degrees",
-                   "worst_feature_change", "trunk_shape_change", "warnings", "seconds", "output", "error")
+                   "worst_feature_change", "trunk_shape_change", "head_turn_degrees", "warnings", "seconds", "output",
+                   "error")
 
 
 def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
@@ -570,7 +571,8 @@ def _summary_row(job: Job, output: Path, fingerprint: str) -> dict[str, Any]:
 def _quality_cells(quality: dict[str, Any] | None) -> dict[str, Any]:
     """The summary's quality columns from a job report's ``quality`` (allorules.measure.quality):
     faces turned inside out in the mesh written, new self-intersecting face pairs, roughness, the
-    worst small feature's shape change. Empty for a report without it (failed, or written before)."""
+    worst small feature's shape change, the trunk's shape, the head's turn. Empty for a report
+    without it (failed, or written before)."""
     if not quality:
         return {}
     flipped = quality.get("written_flipped_faces") or quality.get("flipped_faces") or {}
@@ -580,7 +582,8 @@ def _quality_cells(quality: dict[str, Any] | None) -> dict[str, Any]:
             "self_intersections": crossings.get("pairs") if new_pairs is None else new_pairs,
             "roughness_degrees": (quality.get("roughness") or {}).get("rms_degrees"),
             "worst_feature_change": quality.get("worst_feature_change"),
-            "trunk_shape_change": quality.get("trunk_shape_change")}
+            "trunk_shape_change": quality.get("trunk_shape_change"),
+            "head_turn_degrees": quality.get("head_turn_degrees")}
 
 
 def _cell(value: Any) -> str:

@@ -366,10 +366,11 @@ def _quality_row(run: DemoRun) -> list:
     written = quality.get("written_flipped_faces") or quality["flipped_faces"]
     crossings = quality.get("self_intersections") or {}
     trunk = quality.get("trunk_shape_change")
+    head = quality.get("head_turn_degrees")
     rules = quality.get("rules") or []
     return [run.name, written["count"], crossings.get("new_pairs", crossings.get("pairs")),
             _tenths(quality["roughness"]["rms_degrees"]), round(100 * quality["worst_feature_change"]),
-            "–" if trunk is None else round(100 * trunk),
+            "–" if trunk is None else round(100 * trunk), "–" if head is None else _tenths(head),
             f"{sum(rule['met'] for rule in rules)} of {len(rules)}" if rules else "–"]
 
 
@@ -426,12 +427,14 @@ def _write_reports(demo: DemoResult, generated, body) -> None:
                         "Bow: how far the leg's centre line strays from straight, change over the run.")
     quality = Table("Quality: what an artist would look for", ["run", "flipped faces", "new self-intersecting pairs",
                                                                "roughness (°)", "worst small feature (% of its size)",
-                                                               "trunk beyond a stretch (% of its radius)", "rules met"],
+                                                               "trunk beyond a stretch (% of its radius)",
+                                                               "head turned (°)", "rules met"],
                     [_quality_row(run) for run in demo.runs if run.quality],
                     note="Measured on the output against the input (docs/measurements.md, docs/method.md): faces turned "
                          "inside out, face pairs passing through each other that did not before, the RMS change of the "
                          "dihedral angles (0 for uniform scaling), the largest shape change of a horn, ear, eye or hoof, "
-                         "and how far the trunk is from any stretch of itself (a hump, a sag or a bulge).")
+                         "how far the trunk is from any stretch of itself (a hump, a sag or a bulge), and how far "
+                         "the head turned (a nod nobody asked for).")
     timings = Table("Steps", ["step", "seconds"], [[text, round(seconds, 1)] for text, seconds in demo.timings])
     notes = [f"{run.name}: {run.error}" for run in demo.runs if run.error]
     notes += [f"{run.name}: {message}" for run in demo.runs for message in run.result.get("messages", [])]
