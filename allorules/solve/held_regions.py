@@ -153,8 +153,8 @@ class HeldPart:
         return rotation
 
     def shape(self, moved: np.ndarray, scale: float, parent_turn: np.ndarray | None = None) -> np.ndarray:
-        """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
-        is, its near opening's centre where ``moved`` has it.
+        """S: the reference shape × ``scale``, turned as the region it grows from turned, its near
+        opening's centre where ``moved`` (the part's vertices after Eq. 9) has it.
 
         Q is the turn of the region the part grows from (``parent_turn``, :meth:`parent_turn`):
         it keeps its set on the chest, the head or the rump. Without one, the rotation that best
