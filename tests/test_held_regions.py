@@ -103,8 +103,7 @@ def test_any_deformation_leaves_each_part_its_input_shape_times_k(horse_held):
 
 def test_the_blend_zones_leave_no_tear_at_an_opening(horse_held, monkeypatch):
     """Around every opening vertex the edges' stretches (against the deformed mesh) differ by at
-    most 1.5× (measured: 1.27 with this deformation); the part pasted without zones tears (1.96×;
-    3.5× while the neck turned as Eq. 9 left it, where the chest under it turned less)."""
+    most 1.5× (measured: 1.30 with this deformation); the part pasted without zones tears (2.6×)."""
     body, held = horse_held
     moved = _deformed(body.vertices)
     openings = np.concatenate([part.members[np.concatenate([part.near, part.far]).astype(int)] for part in held.parts])
@@ -112,7 +111,7 @@ def test_the_blend_zones_leave_no_tear_at_an_opening(horse_held, monkeypatch):
     assert jump[openings].max() < 1.5
     monkeypatch.setattr(held_regions, "ZONE", 0.0)
     pasted = hold_regions(body, ("neck", "tail")).apply(moved, K)
-    assert _worst_stretch_jump(moved, pasted, body.faces)[openings].max() > 1.8
+    assert _worst_stretch_jump(moved, pasted, body.faces)[openings].max() > 2.0
 
 
 @pytest.mark.slow
@@ -171,30 +170,6 @@ def test_an_appendage_keeps_its_set_on_the_body_when_eq9_swings_it(horse_held):
     _, rotation, _ = similarity_fit(body.vertices[tail.members], result[tail.members])
     assert np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))) < 1.0
     assert np.allclose(result[tail.members], body.vertices[tail.members], atol=1e-9)
-
-
-def _turn_degrees(before: np.ndarray, after: np.ndarray) -> float:
-    _, rotation, _ = similarity_fit(before, after)
-    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
-
-
-def test_the_neck_and_head_keep_their_set_on_the_chest_when_eq9_swings_them(generated_horse):
-    """Eq. 9's per-axis power law tilts a slanted neck: fitted on the neck as Eq. 9 left it, the held
-    neck and head of a low-poly giraffe turned 19° back at ×0.5 and 9° forward at ×2 (a doe's 10°
-    at ×2). Both turn as the region they grow from turned (the chest; the neck), so a swing of 20°
-    about the neck's root leaves the neck at its input set and the head unturned."""
-    body = generated_horse.body()
-    held = hold_regions(body, ("neck", "tail", "head"), {"head": 0.7})
-    neck, head = (next(part for part in held.parts if part.region == name) for name in ("neck", "head"))
-    root = body.vertices[neck.members[neck.near]].mean(axis=0)
-    swing = Rotation.from_euler("z", 20, degrees=True).as_matrix()
-    moved = body.vertices.copy()
-    beyond = np.union1d(np.setdiff1d(neck.members, neck.members[neck.near]), neck.children)
-    moved[beyond] = (moved[beyond] - root) @ swing.T + root
-    result = held.apply(moved, 1.0)
-    assert _turn_degrees(moved[neck.members], body.vertices[neck.members]) > 15.0      # Eq. 9 swung them
-    assert _turn_degrees(body.vertices[neck.members], result[neck.members]) < 0.5
-    assert _turn_degrees(body.vertices[head.members], result[head.members]) < 0.5
 
 
 def test_an_appendage_does_not_follow_a_twist_of_its_opening(horse_held):

@@ -328,7 +328,7 @@ def head_turn(before: Body, after: np.ndarray) -> float | None:
     the angle of the rotation of its best similarity (area-weighted). An output stands where its
     input stood, unturned (``allorules.runs.pipeline.place``), so this is a head that nods up or
     down, or swings aside, when nobody asked for it: a change an artist sees at once (a low-poly
-    giraffe's neck and head once turned 19° back at ×0.5). None without a head."""
+    giraffe's neck and head turn 19° back at ×0.5). None without a head."""
     if before.labels is None or not before.has_region("head"):
         return None
     head = before.region_mask("head")

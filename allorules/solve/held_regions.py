@@ -11,10 +11,10 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
 
 * each connected part P of the region (its faces as the measures take them: most corners in it)
   is given its *input* shape scaled by the isometric factor k = R_reached^(1/3) and turned and
-  placed where Eq. 9 put it: S(x) = k Q x + t, Q the turn of the region it grows from (Kabsch,
-  area-weighted, over that region: the chest under the neck, the neck under the head, the head
-  under an ear, the rump under a tail), so that it keeps its set on the body, t such that the
-  centre of the opening towards the torso (the *near* opening) stays where Eq. 9 put it;
+  placed where Eq. 9 put it: S(x) = k Q x + t, Q the rotation that best maps the input part onto
+  Eq. 9's part (Kabsch, area-weighted; for an appendage, which carries nothing, the turn of the
+  region it grows from: it keeps its set on the head or the rump), t such that the centre of the
+  opening towards the torso (the *near* opening) stays where Eq. 9 put it;
 * what hangs beyond the part (the head beyond the neck, with its ears and horns: the *children*)
   is moved rigidly by τ, the shift that takes Eq. 9's far opening onto S's;
 * the small mismatch left at each opening (Eq. 9 made the chest and the head other than
@@ -117,8 +117,8 @@ class HeldPart:
     kept); ``weights``: their area shares (for the fit); ``near`` / ``far``: indices into
     ``members`` of the opening towards the torso and of the opening beyond (empty for an appendage
     such as a tail); ``children``: body vertices beyond the far opening, moved rigidly by τ;
-    ``parent``: the body vertices of the region it grows from (the chest under the neck, the head
-    under an ear, the abdomen under a tail), whose turn it follows, and ``parent_reference`` /
+    ``parent``: for an appendage, the body vertices of the region it grows from (the head under an
+    ear, the abdomen under a tail), whose turn it follows, and ``parent_reference`` /
     ``parent_weights`` their input positions and area shares;
     ``near_zone`` / ``far_zone``: where the openings' mismatch is spread; ``size_exponent``: the
     part is sized ``scale ** size_exponent`` for the isometric factor ``scale`` (1 for an open
@@ -146,31 +146,28 @@ class HeldPart:
     joined: tuple[str, ...] = ()  # other appendage regions held in this part (they touch it)
 
     def parent_turn(self, vertices: np.ndarray) -> np.ndarray | None:
-        """How the region this part grows from turned (``vertices``: the whole body now)."""
+        """How the region this appendage grows from turned (``vertices``: the whole body now)."""
         if len(self.parent) < 3:
             return None
         _, rotation, _ = similarity_fit(self.parent_reference, vertices[self.parent], self.parent_weights)
         return rotation
 
     def shape(self, moved: np.ndarray, scale: float, parent_turn: np.ndarray | None = None) -> np.ndarray:
-        """S: the reference shape × ``scale``, turned as the region it grows from turned, its near
-        opening's centre where ``moved`` (the part's vertices after Eq. 9) has it.
+        """S: the reference shape × ``scale``, turned as ``moved`` (the part's vertices after Eq. 9)
+        is, its near opening's centre where ``moved`` has it.
 
-        Q is the turn of the region the part grows from (``parent_turn``, :meth:`parent_turn`):
-        it keeps its set on the chest, the head or the rump. Without one, the rotation that best
-        maps the reference onto ``moved`` (Kabsch/Umeyama) for a part that carries something,
-        else none. (Fitted over the neck as Eq. 9 left it, Q turned a low-poly giraffe's neck and
-        head 19° back at ×0.5 and 9° forward at ×2, and a doe's 10° at ×2: Eq. 9's per-axis
-        power law tilts a slanted neck. Fitted over the whole tail, which Eq. 9 bends, Q swung a
+        Q is the rotation that best maps the reference onto ``moved`` (Kabsch/Umeyama) over the
+        whole part when it carries something (the neck: the head goes where Eq. 9 put it). An
+        appendage (a tail, an ear, a horn: nothing beyond it) turns as the region it grows from
+        turned (``parent_turn``, :meth:`parent_turn`; identity when not given): it keeps its set
+        on the head or the rump. (Fitted over the whole tail, which Eq. 9 bends, Q swung a
         giraffe's tail out by about 40° at ×0.5; fitted over its near opening alone, a small ring
         that Eq. 9 distorts, it turned the camel's hanging tail up into its rump at ×2; taken as the
         whole body's turn, the cow's ears did not follow its head and a spike stood by its eye.)"""
-        if parent_turn is not None:
-            rotation = parent_turn
-        elif len(self.far):
+        if len(self.far):
             _, rotation, _ = similarity_fit(self.reference, moved, self.weights)
         else:
-            rotation = np.eye(3)
+            rotation = np.eye(3) if parent_turn is None else parent_turn
         shape = scale * self.reference @ rotation.T
         return shape + (moved[self.near].mean(axis=0) - shape[self.near].mean(axis=0))
 
@@ -313,12 +310,13 @@ def hold_regions(body: Body, regions: tuple[str, ...], size_exponents: Mapping[s
             child_side = (side_of >= 0) & (side_of != root_side)
             reference = body.vertices[members].copy()
             parent = np.zeros(0, dtype=np.int64)
-            # a part turns as the region it grows from: the commonest region just outside its near
-            # opening, less what is held
-            outside = touching.col[(neighbour_side == root_side) & (body.labels[touching.col] >= 0)]
-            if len(outside):
-                grows_from = np.bincount(body.labels[outside]).argmax()
-                parent = np.setdiff1d(np.flatnonzero(body.labels == grows_from), members)
+            if not len(far_ids):
+                # an appendage follows the region it grows from: the commonest region just outside its
+                # near opening, less what is held
+                outside = touching.col[(neighbour_side == root_side) & (body.labels[touching.col] >= 0)]
+                if len(outside):
+                    grows_from = np.bincount(body.labels[outside]).argmax()
+                    parent = np.setdiff1d(np.flatnonzero(body.labels == grows_from), members)
             ruled = region in sizes
             seam_ids = near_ids
             if ruled:   # its vertices on faces of the torso's side (the neck's last faces), not only its opening's
