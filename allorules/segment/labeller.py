@@ -435,7 +435,8 @@ def _cut_legs(vertices, faces, graph, mass, feet, axes, cores=None, levels_out=N
         if level is None:
             if not strict:
                 continue
-            raise SegmentationError("a leg could not be separated from the body; the mesh does not look like a quadruped")
+            raise SegmentationError("a leg could not be separated from the body (no level where it meets it); give "
+                                    f"the regions with {body_plan.BY_HAND}")
         below = height < level
         if core is not None:
             below |= core
