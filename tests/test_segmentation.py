@@ -518,3 +518,21 @@ def test_where_the_skeletons_bend_gives_no_neck_the_rings_from_the_head_tip_do(g
     assert mass[found].sum() < 2.5 * mass[head].sum()
     assert labelled.region_mask("neck").any()
     assert area_agreement(labelled.labels, truth.labels, animal.vertices, animal.faces) > 0.85
+
+
+def test_a_leg_that_never_meets_a_body_is_refused_with_the_way_by_hand():
+    """The leg's sweep from its foot up finds no level where it meets the body (a lone capsule:
+    nothing else there; a walking cartoon puppy whose tail and ear were taken for feet): refused,
+    saying how to give the regions by hand."""
+    import trimesh
+
+    from allorules.mesh.geometry import vertex_areas
+    from allorules.segment import body_plan, labeller
+
+    leg = trimesh.creation.capsule(height=4.0, radius=1.0, count=[16, 16])
+    vertices, faces = np.array(leg.vertices), np.array(leg.faces)
+    foot = int(np.argmin(vertices[:, 2]))
+    graph = labeller.vertex_graph(vertices, faces)
+    with pytest.raises(SegmentationError, match="could not be separated") as refused:
+        labeller._cut_legs(vertices, faces, graph, vertex_areas(vertices, faces), [foot], {foot: np.array([0, 0, 1.0])})
+    assert body_plan.BY_HAND in str(refused.value)
