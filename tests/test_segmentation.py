@@ -536,3 +536,28 @@ def test_a_leg_that_never_meets_a_body_is_refused_with_the_way_by_hand():
     with pytest.raises(SegmentationError, match="could not be separated") as refused:
         labeller._cut_legs(vertices, faces, graph, vertex_areas(vertices, faces), [foot], {foot: np.array([0, 0, 1.0])})
     assert body_plan.BY_HAND in str(refused.value)
+
+
+def test_a_chest_that_rises_far_above_the_back_is_refused():
+    """A head cut through and left with the chest (a cartoon kitten's big round head sat on its
+    body with no neck: its face alone labelled head, 1.43) rises far above the back; a generated
+    dog with a big head on a short upright neck does not (0.1-0.2), and with its head and neck
+    given to the chest it rises beyond MAX_CHEST_RISE and is refused, saying how to give the
+    regions by hand."""
+    from allorules.mesh.quadruped import generate_quadruped
+    from allorules.segment import body_plan, labeller
+
+    dog = generate_quadruped("dog", 2000, neck_angle=85.0, neck_length=0.04, head_length=0.4, head_height=0.45,
+                             head_width=0.4, head_angle=0.0)
+    body = dog.body()
+    index = {name: labeller.REGIONS.index(name) for name in labeller.REGIONS}
+    labels = np.array([index.get(name, -1) for name in np.asarray(body.region_names)[body.labels]])
+    up = np.array([0.0, 1.0, 0.0])
+    assert labeller.chest_rise(body.vertices, labels, up) < 0.3
+    labeller._check_chest_rise(body.vertices, labels, up)
+    swallowed = labels.copy()
+    swallowed[np.isin(labels, [labeller.HEAD, labeller.NECK])] = labeller.CHEST
+    assert labeller.chest_rise(body.vertices, swallowed, up) > labeller.MAX_CHEST_RISE
+    with pytest.raises(SegmentationError, match="rises far above the back") as refused:
+        labeller._check_chest_rise(body.vertices, swallowed, up)
+    assert body_plan.BY_HAND in str(refused.value)
