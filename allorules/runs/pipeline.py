@@ -867,21 +867,22 @@ def run(
     ruleset = scaling.ruleset if isinstance(scaling, RulesetScaling) else None
     prepared = prepare(source)
     given = source if isinstance(source, Body) and source.labels is not None else None
+    segmenter = segmenter or (ruleset.segmenter if ruleset else None)
+    regions = wanted_regions(ruleset)
     if isinstance(scaling, RawGlobalScaling) and labels is None and given is None:
         work = working(prepared, working_vertices)
         body = work.body()                              # Eq. 4 once measures nothing: no regions needed
     else:
         work, body = labelled_working(prepared, registry=registry, working_vertices=working_vertices,
-                                      segmenter=segmenter or (ruleset.segmenter if ruleset else None), labels=labels,
-                                      given=given, up=up, forward=forward, regions=wanted_regions(ruleset),
-                                      labels_beside=labels_beside)
+                                      segmenter=segmenter, labels=labels, given=given, up=up, forward=forward,
+                                      regions=regions, labels_beside=labels_beside)
     labels_file = Path(labels) if isinstance(labels, (str, Path)) else None
     try:
         result = scale(body, scaling, registry=registry, modes=modes, use_cache=use_cache, progress=progress)
         if not result.converged and ruleset is not None and working_vertices is None:
             work, body, result = _coarser_working(prepared, work, body, result, scaling, registry=registry, modes=modes,
-                                                  use_cache=use_cache, progress=progress, regions=wanted_regions(ruleset),
-                                                  segmenter=segmenter or ruleset.segmenter, up=up, forward=forward)
+                                                  use_cache=use_cache, progress=progress, regions=regions,
+                                                  segmenter=segmenter, up=up, forward=forward)
     except ScalingError as error:
         if isinstance(error.closest, BiologyScalingResult) and error.run is None:
             # a run that stopped at a step: what it reached, placed, goes with the error, so that a
@@ -916,7 +917,7 @@ def _coarser_working(prepared: PreparedMesh, work: Working, body: Body, result: 
     if work.mesh.method == "recorded":
         return work, body, result
     segmented = body.labelling is not None and body.labelling.source.startswith("segmenter")
-    user = work.labels_to_user(body, Body(prepared.vertices, prepared.faces))
+    user = None if segmented else work.labels_to_user(body, Body(prepared.vertices, prepared.faces))
     tries = [WorkingTry(int(len(work.mesh.vertices)), _first_message(result))]
     for size in COARSER_WORKING:
         if min(attempt.vertices for attempt in tries) <= size * 1.25:   # hardly coarser: the same run again
