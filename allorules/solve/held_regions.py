@@ -42,6 +42,7 @@ from typing import Mapping
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial.transform import Rotation
 
 from allorules.body import Body
 from allorules.mesh.geometry import similarity_fit, smoothstep, vertex_areas
@@ -188,6 +189,25 @@ class HeldPart:
         if self.ruled:   # every vertex it shares with the side before it stays where that side has it
             self.near_zone.apply(vertices, moved[self.seam] - shape[self.seam])
 
+    def turn_back(self, vertices: np.ndarray) -> None:
+        """Turn the part and what it carries (in ``vertices``, in place) rigidly about its near
+        opening's centre back to the direction it had on the run's input: by Qᵀ, Q the rotation
+        of its best similarity from the input (Kabsch, area-weighted), as the legs are turned back
+        (:func:`allorules.solve.posture.restore_limb_axes`). The near zone turns by its weight's
+        share of Qᵀ about the same centre: the body beside the opening bends, it is not sheared.
+        Only an open part that carries something (the neck under the head) is turned."""
+        if not len(self.far) or self.ruled:
+            return
+        _, turn, _ = similarity_fit(self.reference, vertices[self.members], self.weights)
+        back = Rotation.from_matrix(turn.T).as_rotvec()
+        pivot = vertices[self.members[self.near]].mean(axis=0)
+        moving = np.union1d(self.members, self.children)
+        vertices[moving] = (vertices[moving] - pivot) @ Rotation.from_rotvec(back).as_matrix().T + pivot
+        zone = self.near_zone
+        if len(zone.vertices):
+            bends = Rotation.from_rotvec(zone.weight[:, None] * back[None, :])
+            vertices[zone.vertices] = bends.apply(vertices[zone.vertices] - pivot) + pivot
+
 
 @dataclass(frozen=True)
 class HeldRegions:
@@ -215,6 +235,16 @@ class HeldRegions:
         result = np.array(vertices, dtype=float, copy=True)
         for part in self.parts:
             part.apply(result, scale, float(sizes.get(part.region, 1.0)))
+        return result
+
+    def turned_back(self, vertices: np.ndarray) -> np.ndarray:
+        """``vertices`` with every open part that carries another (the neck, with the head, its ears
+        and horns) turned back to the direction it had on the run's input
+        (:meth:`HeldPart.turn_back`): Eq. 9's per-axis power law tilts a slanted neck, and the held
+        neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2)."""
+        result = np.array(vertices, dtype=float, copy=True)
+        for part in self.parts:
+            part.turn_back(result)
         return result
 
 
