@@ -228,6 +228,29 @@ def test_a_neck_tilted_with_its_head_is_turned_back(horse_held):
     assert np.allclose(held.turned_back(scaled), scaled, rtol=0, atol=1e-9 * np.abs(scaled).max())
 
 
+def test_a_head_held_at_its_rules_size_is_turned_back_on_its_base(generated_horse):
+    """The head, held at its rule's size, turns as Eq. 9 left it too (the cow 381's 1.7° at ×0.5
+    with its neck turned back): a head swung 10° about its base, its base bent with it, is turned
+    back to its input direction, the seam where it meets the neck left where it was."""
+    body = generated_horse.body()
+    held = hold_regions(body, ("neck", "head"), {"head": 0.7})
+    head = next(part for part in held.parts if part.region == "head")
+    assert head.ruled and len(head.near_zone.vertices)
+    base = body.vertices[head.members[head.near]].mean(axis=0)
+    zone = head.near_zone
+    moved = body.vertices.copy()
+    swung = np.setdiff1d(np.union1d(head.members, head.children), zone.vertices)
+    nod = Rotation.from_euler("z", -10, degrees=True).as_matrix()
+    moved[swung] = (moved[swung] - base) @ nod.T + base
+    for vertex, weight in zip(zone.vertices, zone.weight):     # 1 at the seam: it stays
+        bend = Rotation.from_euler("z", -10 * (1.0 - weight), degrees=True).as_matrix()
+        moved[vertex] = (moved[vertex] - base) @ bend.T + base
+    mask = body.region_mask("head")
+    assert _turn_degrees(body.vertices[mask], moved[mask]) > 5.0
+    result = held.turned_back(moved)
+    assert np.allclose(result, body.vertices, atol=1e-9)
+
+
 def test_touching_appendages_of_two_regions_are_one_part_and_both_keep_their_shape(generated_horse):
     """An ear and a horn that share a vertex are held as one part: held apart, the one applied
     second moved the first's shared vertices (the cow 381's ears came out at 0.9039 for 0.9). Here

@@ -193,19 +193,25 @@ class HeldPart:
         """Turn the part and what it carries (in ``vertices``, in place) rigidly about its near
         opening's centre back to the direction it had on the run's input: by Qᵀ, Q the rotation
         of its best similarity from the input (Kabsch, area-weighted), as the legs are turned back
-        (:func:`allorules.solve.posture.restore_limb_axes`). The near zone turns by its weight's
-        share of Qᵀ about the same centre: the body beside the opening bends, it is not sheared.
-        Only an open part that carries something (the neck under the head) is turned."""
-        if not len(self.far) or self.ruled:
+        (:func:`allorules.solve.posture.restore_limb_axes`). An open part's near zone, beside it,
+        turns by its weight's share of Qᵀ about the same centre (the body there bends, it is not
+        sheared); a ruled part's, its own base, by the rest of it (the seam stays where the part
+        before it left it). Only a part that carries something (the neck under the head) or is
+        held at its rule's size (the head) is turned: an appendage already turns with its parent."""
+        if not len(self.far) and not self.ruled:
             return
-        _, turn, _ = similarity_fit(self.reference, vertices[self.members], self.weights)
+        # a ruled part is turned as its shape beyond its base is (the base blends into the neck)
+        fitted = ~np.isin(self.members, self.near_zone.vertices) if self.ruled else np.ones(len(self.members), bool)
+        fitted = fitted if fitted.sum() >= MIN_VERTICES else np.ones(len(self.members), bool)
+        _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
         back = Rotation.from_matrix(turn.T).as_rotvec()
         pivot = vertices[self.members[self.near]].mean(axis=0)
-        moving = np.union1d(self.members, self.children)
-        vertices[moving] = (vertices[moving] - pivot) @ Rotation.from_rotvec(back).as_matrix().T + pivot
         zone = self.near_zone
+        share = 1.0 - zone.weight if self.ruled else zone.weight
+        moving = np.setdiff1d(np.union1d(self.members, self.children), zone.vertices)
+        vertices[moving] = (vertices[moving] - pivot) @ Rotation.from_rotvec(back).as_matrix().T + pivot
         if len(zone.vertices):
-            bends = Rotation.from_rotvec(zone.weight[:, None] * back[None, :])
+            bends = Rotation.from_rotvec(share[:, None] * back[None, :])
             vertices[zone.vertices] = bends.apply(vertices[zone.vertices] - pivot) + pivot
 
 
@@ -238,8 +244,8 @@ class HeldRegions:
         return result
 
     def turned_back(self, vertices: np.ndarray) -> np.ndarray:
-        """``vertices`` with every open part that carries another (the neck, with the head, its ears
-        and horns) turned back to the direction it had on the run's input
+        """``vertices`` with the neck (with the head, its ears and horns) and the head turned back to
+        the direction each had on the run's input
         (:meth:`HeldPart.turn_back`): Eq. 9's per-axis power law tilts a slanted neck, and the held
         neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2)."""
         result = np.array(vertices, dtype=float, copy=True)
