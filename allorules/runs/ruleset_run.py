@@ -281,6 +281,12 @@ def scale_with_ruleset(
                         break
                     log.debug("last step solved again for its fresh misses %s", {k: round(v, 4) for k, v in misses.items()})
                     solution, following, corrections = refit, candidate, moved
+            if last and held.parts and ruleset.solver.posture in ("keep", "upright"):
+                # the neck and the head turned back to the direction they had on the input, as the legs
+                # are, once the run is made: in every trial they changed the run's path (the cow 381 at
+                # ×2 came out with swollen knees); before the last step's refits, they let a lumpy
+                # first run of the same cow meet its mass
+                following = carry_choices(current, following.with_vertices(held.turned_back(following.vertices)))
             mass_out = measure(ruleset.body_mass.measure, following, ruleset.body_mass.region)
             stress_out = gauge.stress(following) if gauge else None
         except MeasurementError as error:
@@ -339,11 +345,6 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         # the feet's shift reaches every vertex: the held parts given their shape once more
         sizes = {region: 1.0 + value for region, value in solution.sizes.items()}
         following = following.with_vertices(held.apply(following.vertices, isometric, sizes))
-        if last and posture in ("keep", "upright"):
-            # the neck and head turned back to sit on the chest as they did on the input, once, at
-            # the end: turned back in every trial, they changed the run's path (the cow 381 at ×2 came
-            # out with swollen knees)
-            following = following.with_vertices(held.turned_back(following.vertices))
     return carry_choices(start, following)
 
 

@@ -189,7 +189,7 @@ class HeldPart:
         if self.ruled:   # every vertex it shares with the side before it stays where that side has it
             self.near_zone.apply(vertices, moved[self.seam] - shape[self.seam])
 
-    def turn_back(self, vertices: np.ndarray) -> None:
+    def turn_back(self, vertices: np.ndarray, carried: np.ndarray | None = None) -> None:
         """Turn the part and what it carries (in ``vertices``, in place) rigidly about its near
         opening's centre back to the direction it had on the run's input: by Qᵀ, Q the rotation
         of its best similarity from the input (Kabsch, area-weighted), as the legs are turned back
@@ -197,7 +197,8 @@ class HeldPart:
         turns by its weight's share of Qᵀ about the same centre (the body there bends, it is not
         sheared); a ruled part's, its own base, by the rest of it (the seam stays where the part
         before it left it). Only a part that carries something (the neck under the head) or is
-        held at its rule's size (the head) is turned: an appendage already turns with its parent."""
+        held at its rule's size (the head) is turned: an appendage already turns with its parent.
+        ``carried``: more vertices that turn with it rigidly (the appendages that grow from it)."""
         if not len(self.far) and not self.ruled:
             return
         # a ruled part is turned as its shape beyond its base is (the base blends into the neck)
@@ -206,11 +207,14 @@ class HeldPart:
         _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
         back = Rotation.from_matrix(turn.T).as_rotvec()
         pivot = vertices[self.members[self.near]].mean(axis=0)
+        moving = np.union1d(self.members, self.children)
         zone = self.near_zone
-        share = 1.0 - zone.weight if self.ruled else zone.weight
-        moving = np.setdiff1d(np.union1d(self.members, self.children), zone.vertices)
+        if carried is not None:       # whole, also where the zone reaches them
+            moving, zone = np.union1d(moving, carried), zone.without(carried)
+        moving = np.setdiff1d(moving, zone.vertices)
         vertices[moving] = (vertices[moving] - pivot) @ Rotation.from_rotvec(back).as_matrix().T + pivot
         if len(zone.vertices):
+            share = 1.0 - zone.weight if self.ruled else zone.weight
             bends = Rotation.from_rotvec(share[:, None] * back[None, :])
             vertices[zone.vertices] = bends.apply(vertices[zone.vertices] - pivot) + pivot
 
@@ -250,7 +254,13 @@ class HeldRegions:
         neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2)."""
         result = np.array(vertices, dtype=float, copy=True)
         for part in self.parts:
-            part.turn_back(result)
+            # the appendages that grow from it turn with it whole, also where they touch a region
+            # before it (the cow 381's ears and horns touch its neck: only a third of them lay beyond
+            # the head, and turning that third alone tore its horns)
+            carried = [other.members for other in self.parts if other is not part and not len(other.far)
+                       and not other.ruled and len(other.parent)
+                       and np.isin(other.parent, part.members).mean() > 0.5]
+            part.turn_back(result, np.concatenate(carried) if carried else None)
         return result
 
 
