@@ -251,7 +251,7 @@ class HeldRegions:
         """``vertices`` with the neck (with the head, its ears and horns) and the head turned back to
         the direction each had on the run's input
         (:meth:`HeldPart.turn_back`): Eq. 9's per-axis power law tilts a slanted neck, and the held
-        neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2)."""
+        neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2; turned back, 0.1°)."""
         result = np.array(vertices, dtype=float, copy=True)
         for part in self.parts:
             # the appendages that grow from it turn with it whole, also where they touch a region
