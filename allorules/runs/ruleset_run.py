@@ -359,12 +359,12 @@ def _turned_back(result: BiologyScalingResult, start: Body, following: Body, hel
         before = _worst_miss(_carried_misses(terms, anchors, reached, following, measure), allowed)
         after = _worst_miss(_carried_misses(terms, anchors, reached, turned, measure), allowed)
     except MeasurementError as error:
-        after, before = math.inf, 0.0
-        log.debug("the neck and head turned back could not be measured: %s", error)
-    if after <= max(before, 1.0):
-        return turned
-    result.warnings.append("the neck and the head were left turned as Eq. 9 turned them: turned back to their "
-                           f"input direction, the run missed a target by {after:.1f}× its tolerance")
+        why = f"turned back to their input direction, the output could not be measured ({error})"
+    else:
+        if after <= max(before, 1.0):
+            return turned
+        why = f"turned back to their input direction, the run missed a target by {after:.1f}× its tolerance"
+    result.warnings.append(f"the neck and the head were left turned as Eq. 9 turned them: {why}")
     return following
 
 

@@ -197,9 +197,10 @@ class HeldPart:
         turns by its weight's share of Qᵀ about the same centre (the body there bends, it is not
         sheared); a ruled part's, its own base, by the rest of it (the seam stays where the part
         before it left it). Only a part that carries something (the neck under the head) or is
-        held at its rule's size (the head) is turned: an appendage already turns with its parent.
+        held at its rule's size (the head) is turned: an appendage (a tail, ears, horns; even one
+        held at its rule's size) already turns with the region it grows from.
         ``carried``: more vertices that turn with it rigidly (the appendages that grow from it)."""
-        if not len(self.far) and not self.ruled:
+        if not len(self.far) and (not self.ruled or self.region in NEIGHBOUR_REGION):
             return
         # a ruled part is turned as its shape beyond its base is (the base blends into the neck)
         fitted = ~np.isin(self.members, self.near_zone.vertices) if self.ruled else np.ones(len(self.members), bool)
