@@ -283,26 +283,32 @@ def scale_with_ruleset(
                     solution, following, corrections = refit, candidate, moved
             if last and target != 1.0 and held.parts and ruleset.solver.posture in ("keep", "upright"):
                 # The neck and the head turned back to the direction they had on the input, as the legs
-                # are, once the run is made (:func:`_turned_back`); where that moves a target beyond
-                # its tolerance, the step is solved once more for what the turn moved and turned again.
+                # are, once the run is made (:func:`_turned_back`); where that moves a target by more
+                # than the refits above allow, the step is solved once more for what the turn moved and
+                # turned again; the turn is left out only where a target then misses its tolerance.
                 why = ""
                 try:
-                    bound = max(_worst_miss(_carried_misses(terms, anchors, reached * ratio, following, measure),
-                                            allowed), 1.0)
+                    unturned = _worst_miss(_carried_misses(terms, anchors, reached * ratio, following, measure), allowed)
                     turned = _turned_back(current, following, held)
                     misses = _carried_misses(terms, anchors, reached * ratio, turned, measure)
-                    if _worst_miss(misses, allowed) > bound:
-                        moved = {key: corrections[key] * misses[key] for key in corrections}
+                    missed = _worst_miss(misses, allowed)
+                except MeasurementError as error:
+                    why, missed = str(error), math.inf
+                if not why and missed > max(unturned, LAST_STEP_MISS):
+                    moved = {key: corrections[key] * misses[key] for key in corrections}
+                    try:
                         refit = solve(ruleset, basis, moved, solution.variables, solution.jacobian)
-                        turned = _turned_back(current, _settled(current, refit, ruleset.solver.posture, last, held,
-                                                                isometric), held)
-                        missed = _worst_miss(_carried_misses(terms, anchors, reached * ratio, turned, measure), allowed)
-                        if missed <= bound:
-                            solution, corrections = refit, moved
-                        else:
-                            why = f"turned back, the run missed a target by {missed:.1f}× its tolerance, solved again too"
-                except (ScalingError, MeasurementError) as error:
-                    why = str(error)
+                        turned_again = _turned_back(current, _settled(current, refit, ruleset.solver.posture, last, held,
+                                                               isometric), held)
+                        missed_again = _worst_miss(_carried_misses(terms, anchors, reached * ratio, turned_again, measure),
+                                                   allowed)
+                    except (ScalingError, MeasurementError) as error:
+                        log.debug("the last step solved again for its turn was not kept: %s", error)
+                    else:
+                        if missed_again < missed:
+                            solution, corrections, turned, missed = refit, moved, turned_again, missed_again
+                if not why and missed > max(unturned, 1.0):
+                    why = f"turned back, the run missed a target by {missed:.1f}× its tolerance, solved again too"
                 if why:
                     result.warnings.append(f"the neck and the head were left turned as Eq. 9 turned them: {why}")
                 else:
