@@ -143,7 +143,10 @@ def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_r
     # solver gave it to meet its mass
     held = hold_regions(body, ("neck", "tail", "head"), {"head": 0.7})
     for part in held.parts:
-        members = part.members[~np.isin(part.members, part.near_zone.vertices)] if part.ruled else part.members
+        # beyond the base that bends where the part is turned back at the run's end (the neck), or
+        # that meets the neck (the head)
+        base = part.near_zone if part.ruled else part.base_zone
+        members = part.members[~np.isin(part.members, base.vertices)]
         scale, residual = _similarity_residual(body.vertices[members], result.body.vertices[members])
         expected = ratio ** (0.7 / 3) if part.ruled else ratio ** (1 / 3)
         assert residual < 1e-6, (part.region, residual)
@@ -153,7 +156,8 @@ def test_generated_quadruped_keeps_its_neck_and_tail_isometric_and_meets_every_r
     # 0.07° at both ratios; before, as Eq. 9 left the neck, 4.0° at ×2 and 6.7° at ×0.5)
     neck = held.parts[0]
     assert neck.region == "neck"
-    assert _turn_degrees(body.vertices[neck.members], result.body.vertices[neck.members]) < 1e-3
+    beyond = neck.members[~np.isin(neck.members, neck.base_zone.vertices)]
+    assert _turn_degrees(body.vertices[beyond], result.body.vertices[beyond]) < 1e-3
     assert head_turn(body, result.body.vertices) < 0.5
     # measured: openings' worst 1.50 / 1.83 (×2), 1.63 / 2.57 (×0.5); the body's own worst 1.91 / 3.26
     jump = _worst_stretch_jump(body.vertices, result.body.vertices, body.faces)
@@ -219,7 +223,7 @@ def test_a_neck_tilted_with_its_head_is_turned_back(horse_held):
     head = body.region_mask("head")
     assert _turn_degrees(body.vertices[head], moved[head]) == pytest.approx(12.0, abs=1e-6)
     result = held.turned_back(moved)
-    assert _turn_degrees(body.vertices[head], result[head]) < 1e-6
+    assert _turn_degrees(body.vertices[head], result[head]) < 1e-3     # arccos's precision
     assert np.allclose(result, body.vertices, atol=1e-9)
     rest = np.setdiff1d(np.arange(len(moved)), np.union1d(neck.members, neck.children))
     assert np.array_equal(result[rest], moved[rest])

@@ -205,14 +205,14 @@ class HeldPart:
         ``carried``: more vertices that turn with it rigidly (the appendages that grow from it)."""
         if not len(self.far) and (not self.ruled or self.region in NEIGHBOUR_REGION):
             return
-        # a ruled part is turned as its shape beyond its base is (the base blends into the neck)
-        fitted = ~np.isin(self.members, self.near_zone.vertices) if self.ruled else np.ones(len(self.members), bool)
+        zone = self.near_zone if self.ruled else self.base_zone
+        # turned as its shape beyond its base is (a ruled part's base blends into the neck)
+        fitted = ~np.isin(self.members, zone.vertices)
         fitted = fitted if fitted.sum() >= MIN_VERTICES else np.ones(len(self.members), bool)
         _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
         back = Rotation.from_matrix(turn.T).as_rotvec()
         pivot = vertices[self.members[self.near]].mean(axis=0)
         moving = np.union1d(self.members, self.children)
-        zone = self.near_zone if self.ruled else self.base_zone
         if carried is not None:       # whole, also where the zone reaches them
             moving, zone = np.union1d(moving, carried), zone.without(carried)
         moving = np.setdiff1d(moving, zone.vertices)
