@@ -283,9 +283,9 @@ def scale_with_ruleset(
                     solution, following, corrections = refit, candidate, moved
             if last and target != 1.0 and held.parts and ruleset.solver.posture in ("keep", "upright"):
                 # The neck and the head turned back to the direction they had on the input, as the legs
-                # are, once the run is made (:func:`_turned_back`); where that moves a target by more
-                # than the refits above allow, the step is solved once more for what the turn moved and
-                # turned again; the turn is left out only where a target then misses its tolerance.
+                # are, once the run is made (:func:`_turned_back`); where that moves a target the run
+                # met by more than the refits above allow, the step is solved once more for what the
+                # turn moved and turned again; the turn is left out where it then misses by more.
                 def worst_of(body: Body) -> tuple[float, dict[str, float]]:
                     # the worst miss of the mass, the rules and the constraints (the elephant's stress
                     # moved +3.1 % as its head turned back), in units of their tolerances
@@ -300,7 +300,8 @@ def scale_with_ruleset(
                     missed, misses = worst_of(turned)
                 except MeasurementError as error:
                     why, missed = str(error), math.inf
-                if not why and missed > max(unturned, LAST_STEP_MISS):
+                if not why and unturned <= 1.0 and missed > max(unturned, LAST_STEP_MISS):
+                    # (a run that misses as it is has had its refits above: LAST_STEP_REFITS)
                     moved = {key: corrections[key] * misses[key] for key in corrections}
                     try:
                         refit = solve(ruleset, basis, moved, solution.variables, solution.jacobian)
