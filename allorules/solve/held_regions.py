@@ -26,6 +26,10 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
   isometric to the measures' precision (the neck to within what its edge shares with the zones);
   the zones lie in ruled regions, whose measures the solver meets on this very mesh.
 
+Once a run is made, the neck (with all it carries) and the head are turned back to the direction
+they had on the run's input (:meth:`HeldRegions.turned_back`), each bending at its own base: Eq.
+9's per-axis power law tilts a slanted neck, and Q above takes that tilt.
+
 A part that does not touch the torso's side of the body, or has fewer than ``MIN_VERTICES``
 vertices, is not held so (a note says so; the soft terms then hold it).
 
@@ -199,10 +203,12 @@ class HeldPart:
         left as it is) and all of it one zone width in (an open part's ``base_zone``, a ruled part's
         ``near_zone``). Bending the chest beside the neck instead moved the front of the trunk: the
         held-out elephant's trunk length then read exponent 0.216 at ×0.5, beyond the 0.333 ± 0.1
-        that refuses a run, where it read 0.240. Only a part that carries something (the neck under the head) or is
-        held at its rule's size (the head) is turned: an appendage (a tail, ears, horns; even one
-        held at its rule's size) already turns with the region it grows from.
-        ``carried``: more vertices that turn with it rigidly (the appendages that grow from it)."""
+        that refuses a run, where it read 0.240.
+
+        Only a part that carries something (the neck under the head) or is held at its rule's size
+        (the head) is turned: an appendage (a tail, ears, horns; even one held at its rule's size)
+        already turns with the region it grows from. ``carried``: more vertices that turn with it
+        rigidly (the appendages that grow from it)."""
         if not len(self.far) and (not self.ruled or self.region in NEIGHBOUR_REGION):
             return
         zone = self.near_zone if self.ruled else self.base_zone
