@@ -286,6 +286,8 @@ def scale_with_ruleset(
                 # are, once the run is made (:func:`_turned_back`); where that moves a target the run
                 # met by more than the refits above allow, the step is solved once more for what the
                 # turn moved and turned again; the turn is left out where it then misses by more.
+                allowed = _allowed_misses(ruleset, target)
+
                 def worst_of(body: Body) -> tuple[float, dict[str, float]]:
                     # the worst miss of the mass, the rules and the constraints (the elephant's stress
                     # moved +3.1 % as its head turned back), in units of their tolerances

@@ -131,7 +131,9 @@ class HeldPart:
     ``ruled``: such a part's near zone lies inside it (its base takes the opening where the region
     before it left it, so that an isometric neck stays isometric) and its size is a variable of
     the solver (the rule is met by the solver, the base's blend included); ``joined``: the other
-    open appendage regions held in this part, which touch it (an ear's horn)."""
+    open appendage regions held in this part, which touch it (an ear's horn); ``base_zone``: for
+    an open part that carries others (the neck), its own base, where it bends when turned back
+    (:meth:`turn_back`)."""
 
     region: str
     members: np.ndarray
@@ -149,7 +151,7 @@ class HeldPart:
     ruled: bool = False          # held at its rule's size: its base blends to where its neighbour left the opening
     seam: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # ruled: members on the torso side's faces
     joined: tuple[str, ...] = ()  # other appendage regions held in this part (they touch it)
-    base_zone: BlendZone = field(default_factory=lambda: _EMPTY_ZONE)  # an open carrying part's own base (turn_back)
+    base_zone: BlendZone = field(default_factory=lambda: _EMPTY_ZONE)
 
     def parent_turn(self, vertices: np.ndarray) -> np.ndarray | None:
         """How the region this appendage grows from turned (``vertices``: the whole body now)."""
