@@ -67,6 +67,38 @@ def test_holes_are_reported_and_capped_for_volume_only():
     assert enclosed_volume(capped_vertices, capped_faces) == pytest.approx(4 / 3 * np.pi, rel=0.02)
 
 
+def _split_in_halves(mesh: trimesh.Trimesh, gap: float) -> trimesh.Trimesh:
+    """The mesh cut in two along x = 0, the vertices of the cut copied for the left half and moved
+    ``gap`` (of an edge) to the left: a mirrored half exported with its seam not welded."""
+    left = mesh.vertices[mesh.faces].mean(axis=1)[:, 0] < 0
+    shared = np.intersect1d(mesh.faces[left], mesh.faces[~left])
+    copy = np.arange(len(mesh.vertices))
+    copy[shared] = len(mesh.vertices) + np.arange(len(shared))
+    moved = mesh.vertices[shared] - [gap * mesh.edges_unique_length.mean(), 0.0, 0.0]
+    faces = np.where(left[:, None], copy[mesh.faces], mesh.faces)
+    return trimesh.Trimesh(np.vstack([mesh.vertices, moved]), faces, process=False)
+
+
+def test_an_open_seam_is_welded_and_every_input_vertex_kept():
+    mesh = sphere()
+    split = _split_in_halves(mesh, gap=0.002)
+    assert count_boundary_loops(split.faces) >= 1
+    prepared = prepare_mesh(split)
+    assert prepared.boundary_loops == 0
+    assert len(prepared.vertices) == len(mesh.vertices)
+    assert any("open seam" in repair for repair in prepared.repairs)
+    # every input vertex maps onto a body vertex, and moves with it
+    assert (prepared.source_vertex_index >= 0).all()
+    assert np.abs(prepared.vertices[prepared.source_vertex_index] - split.vertices).max() < 0.01 * mesh.edges_unique_length.mean()
+    assert enclosed_volume(prepared.vertices, prepared.faces) == pytest.approx(enclosed_volume(mesh.vertices, mesh.faces), rel=1e-3)
+
+
+def test_an_opening_wider_than_a_seam_stays_open():
+    prepared = prepare_mesh(_split_in_halves(sphere(), gap=0.3))
+    assert prepared.boundary_loops == 1            # two halves apart: the body is the larger one, open
+    assert not any("open seam" in repair for repair in prepared.repairs)
+
+
 def test_stray_parts_are_carried_along_with_the_body():
     body = sphere(3)
     eye = sphere(1, radius=0.05)

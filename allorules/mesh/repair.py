@@ -1,10 +1,11 @@
 """Mesh preparation: from whatever file the user has to a body the method can work on (METHOD §1).
 
 :func:`load_mesh` reads any format trimesh reads. :func:`prepare_mesh` repairs it in one reusable
-step and says what it changed: merge duplicate (seam) vertices, drop unreferenced vertices,
-degenerate, duplicate and non-manifold faces, orient faces consistently and outward, keep the
-largest connected part as the body and carry the small detached parts (eyes, teeth) along by the
-displacement of their nearest body vertex.
+step and says what it changed: merge duplicate (seam) vertices, weld open seams (boundary
+vertices that nearly touch), drop unreferenced vertices, degenerate, duplicate and non-manifold
+faces, orient faces consistently and outward, keep the largest connected part as the body and
+carry the small detached parts (eyes, teeth) along by the displacement of their nearest body
+vertex.
 :func:`cap_holes` closes boundary loops for volume measurement only; output meshes keep their holes.
 
 The :class:`PreparedMesh` remembers how every vertex of the input maps to the body, so that a
@@ -147,6 +148,13 @@ def prepare_mesh(mesh) -> PreparedMesh:
     if len(vertices) < source_count:
         repairs.append(f"merged {source_count - len(vertices)} duplicate vertices (seams)")
 
+    # 1b. Close open seams: boundary vertices that nearly touch (a mirrored half not welded to
+    # its other half) are one point; over the slit, the body's left and right would be far apart.
+    seam_index, vertices = _weld_open_seams(vertices, faces)
+    if len(seam_index) > len(vertices):
+        repairs.append(f"welded {len(seam_index) - len(vertices)} vertices along open seams (edges of holes that touch)")
+    merged_index, faces = seam_index[merged_index], seam_index[faces]
+
     # 2. Drop degenerate, duplicate and non-manifold faces.
     faces, dropped = _drop_degenerate_faces(vertices, faces)
     if dropped:
@@ -239,6 +247,12 @@ def _merge_close_vertices(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     """Union vertices closer than MERGE_TOLERANCE × bounding-box diagonal; returns (index, unique)."""
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     pairs = cKDTree(vertices).query_pairs(max(diagonal, np.finfo(float).tiny) * MERGE_TOLERANCE, output_type="ndarray")
+    return _union(vertices, pairs)
+
+
+def _union(vertices: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices joined in groups by ``pairs`` (index pairs); returns (index, unique), each group
+    kept as its first vertex."""
     n = len(vertices)
     if len(pairs) == 0:
         return np.arange(n), vertices
@@ -251,6 +265,36 @@ def _merge_close_vertices(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     new_id = np.empty_like(order)
     new_id[order] = np.arange(len(order))
     return new_id[group], vertices[first[order]]
+
+
+SEAM_TOLERANCE = 0.05   # of the median boundary edge: boundary vertices this near are one point
+
+
+def _weld_open_seams(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Union boundary vertices closer than SEAM_TOLERANCE × the median boundary edge to another
+    boundary vertex they share no edge with; returns (index, unique) as
+    :func:`_merge_close_vertices`. A mirrored half exported without its seam welded (the
+    vertices along the cut 0.2 % of an edge apart) is one surface again."""
+    n = len(vertices)
+    edges = corner_edges(faces)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    boundary = unique[counts == 1]
+    if len(boundary) == 0:
+        return np.arange(n), vertices
+    tolerance = SEAM_TOLERANCE * float(np.median(np.linalg.norm(vertices[boundary[:, 0]] - vertices[boundary[:, 1]], axis=1)))
+    rim = np.unique(boundary)
+    pairs = rim[cKDTree(vertices[rim]).query_pairs(tolerance, output_type="ndarray")]
+    if len(pairs) == 0:
+        return np.arange(n), vertices
+    pairs = np.sort(pairs, axis=1)
+    pairs = pairs[~_rows_in(pairs, unique)]
+    return _union(vertices, pairs)
+
+
+def _rows_in(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """Which of ``rows`` (sorted pairs) are rows of ``table`` (sorted pairs)."""
+    key = lambda a: a[:, 0] * (int(max(rows.max(initial=0), table.max(initial=0))) + 1) + a[:, 1]   # noqa: E731
+    return np.isin(key(rows), key(table))
 
 
 def _drop_degenerate_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
