@@ -253,6 +253,15 @@ def test_a_head_held_at_its_rules_size_is_turned_back_on_its_base(generated_hors
     assert _turn_degrees(body.vertices[mask], moved[mask]) > 5.0
     result = held.turned_back(moved)
     assert np.allclose(result, body.vertices, atol=1e-9)
+    # the head alone (neck=False) is turned back the same; the rest, the neck too, is left as it is
+    alone = held.turned_back(moved, neck=False)
+    assert np.allclose(alone, body.vertices, atol=1e-9)
+    neck = next(part for part in held.parts if part.region == "neck")
+    rest = np.setdiff1d(np.arange(len(moved)), np.union1d(head.members, head.children))
+    tilted = moved.copy()
+    tilted[rest] = (tilted[rest] - base) @ Rotation.from_euler("z", 5, degrees=True).as_matrix().T + base
+    assert not np.allclose(held.turned_back(tilted)[neck.members], tilted[neck.members])
+    assert np.array_equal(held.turned_back(tilted, neck=False)[rest], tilted[rest])
 
 
 def test_touching_appendages_of_two_regions_are_one_part_and_both_keep_their_shape(generated_horse):

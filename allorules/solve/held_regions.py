@@ -258,13 +258,16 @@ class HeldRegions:
             part.apply(result, scale, float(sizes.get(part.region, 1.0)))
         return result
 
-    def turned_back(self, vertices: np.ndarray) -> np.ndarray:
+    def turned_back(self, vertices: np.ndarray, neck: bool = True) -> np.ndarray:
         """``vertices`` with the neck (with the head, its ears and horns) and the head turned back to
         the direction each had on the run's input
         (:meth:`HeldPart.turn_back`): Eq. 9's per-axis power law tilts a slanted neck, and the held
-        neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2; turned back, 0.1°)."""
+        neck takes that tilt as its turn (the demo horse's head nodded 8.6° at ×2; turned back, 0.1°).
+        ``neck=False``: the head alone (the open parts that carry it stay as they are)."""
         result = np.array(vertices, dtype=float, copy=True)
         for part in self.parts:
+            if not neck and not part.ruled:
+                continue
             # the appendages that grow from it turn with it whole, also where they touch a region
             # before it (the cow 381's ears and horns touch its neck: only a third of them lay beyond
             # the head, and turning that third alone tore its horns)
