@@ -1137,6 +1137,9 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
         return None
     radii, travelled = np.array(radii), np.array(travelled)
     found = _neck_knee(radii, travelled)
+    head_on_chest = found is None
+    if head_on_chest:   # no knee past the widest section: a head wider than the chest? (see _neck_knee)
+        found = _neck_knee(radii, travelled, head_wider=True)
     if found is not None and shoulders is not None and len(shoulders):
         ahead = np.array([float(np.mean((shoulders - centre) @ axis < 0)) for centre, axis in zip(centres, directions)])
         clear = int(np.argmax(ahead > 0))   # the first section with a shoulder point on the head's side
@@ -1163,17 +1166,26 @@ def _follow_neck(vertices, faces, adjacency, start, direction, step, span, shoul
     # surface at 9k vertices and 0.073 at 200k: its narrowest section at 0.50 and 0.53 of the neck).
     share = travelled[narrowest] / max(travelled[base], np.finfo(float).tiny)
     weight = float(smoothstep((THROAT_SHARE[1] - share) / (THROAT_SHARE[1] - THROAT_SHARE[0])))
+    if head_on_chest:   # all that narrows from the bend is the head's: it ends at the narrowest section
+        weight = 1.0
     throat = weight * centres[narrowest] + (1.0 - weight) * np.asarray(start, dtype=float)
     return _Neck(centres[base], directions[base], travelled[base] / radii[narrowest],
                  travelled[narrowest] / radii[narrowest], throat, centres[narrowest], float(radii[narrowest]))
 
 
-def _neck_knee(radii: np.ndarray, travelled: np.ndarray) -> tuple[int, int] | None:
+def _neck_knee(radii: np.ndarray, travelled: np.ndarray, head_wider: bool = False) -> tuple[int, int] | None:
     """(base, narrowest): indices of the neck's base (the knee of the section radius's running
-    maximum past the narrowest section) and of its narrowest section, or None (no knee)."""
+    maximum past the narrowest section) and of its narrowest section, or None (no knee).
+
+    The narrowest section is the narrowest before the widest (the chest). With ``head_wider``, a
+    head wider than the chest sits on it with no neck between (a cartoon kitten's big round head,
+    0.17 against its chest's 0.13): the sections only narrow from the bend to where it meets the
+    chest, then grow a little, and the widest is the first; the chest is then where the sections
+    have grown most over the narrowest before them."""
     if len(radii) < 3:
         return None
-    narrowest = int(np.argmin(radii[:int(np.argmax(radii)) + 1]))   # the neck: before the widest (chest)
+    chest = np.argmax(radii - np.minimum.accumulate(radii)) if head_wider else np.argmax(radii)
+    narrowest = int(np.argmin(radii[:int(chest) + 1]))
     above = _above_chord(radii, travelled, narrowest)
     if above is None or radii[narrowest] <= 0:
         return None
