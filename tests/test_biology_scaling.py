@@ -622,6 +622,38 @@ def test_a_neck_that_its_turn_back_lengthens_stays_and_the_head_alone_turns(anim
     assert not [warning for warning in result.warnings if "left turned" in warning]
 
 
+def test_a_turn_back_that_distorts_a_feature_is_left_out(animal, registry, monkeypatch):
+    """The bull 386's ear, on its head's base, was sheared as its head turned back at ×0.5 (changed
+    shape by 31 % of its size, beyond the 25 % that refuses a run), and its run went on to retries
+    that failed. Stood in for by a "turn" whose output (both ways: with the neck, and the head alone)
+    is reported distorted: the output is left unturned, converged, a warning saying why."""
+    from allorules.runs import ruleset_run
+    from allorules.solve.held_regions import HeldRegions
+
+    turned = []
+
+    def turning(self, vertices, neck=True):
+        vertices = np.array(vertices, dtype=float)
+        vertices[0] += 1e-9 * np.ptp(vertices)        # told apart from the output it turned
+        turned.append(vertices)
+        return vertices
+
+    real = ruleset_run.distortions
+
+    def distortions(before, after):
+        if any(np.array_equal(after, other) for other in turned):
+            return ["a small feature changed shape by 31% of its size (limit 25%)"]
+        return real(before, after)
+
+    monkeypatch.setattr(HeldRegions, "turned_back", turning)
+    monkeypatch.setattr(ruleset_run, "distortions", distortions)
+    result = _run(animal, registry, load_ruleset("quadruped", registry), 2.0)
+    assert len(turned) == 2                              # with the neck, then the head alone; no refit
+    assert result.converged, result.messages
+    left = [warning for warning in result.warnings if "left turned as Eq. 9 turned them" in warning]
+    assert left and "looked distorted" in left[0]
+
+
 def _contradictory_ruleset(tmp_path, registry):
     path = tmp_path / "contradiction.yaml"
     path.write_text(textwrap.dedent("""\

@@ -40,7 +40,7 @@ import logging
 import math
 import time
 from dataclasses import replace
-from typing import NoReturn
+from typing import NamedTuple, NoReturn
 
 import numpy as np
 
@@ -285,38 +285,38 @@ def scale_with_ruleset(
                 # The neck and the head turned back to the direction they had on the input, as the legs
                 # are, once the run is made (:func:`_turned_back`). Judged on the run's targets (the
                 # mass, the rules, the constraints: the elephant's stress moved +3.1 % as its head
-                # turned back) and on the open regions held isometric (the low-poly dog's neck, as
+                # turned back), on the open regions held isometric (the low-poly dog's neck, as
                 # short as it is wide, bent its whole length at its base and read 6 % longer), in
-                # units of their tolerances: where turning the neck too misses, the head alone is
+                # units of their tolerances, and on the distortions it shows that the output did not
+                # (:class:`_TurnMisses`): where turning the neck too misses, the head alone is
                 # turned; where the turn moves a target the run met by more than the refits above
                 # allow, the step is solved once more for what it moved and turned again; the turn
                 # is left out where it then misses by more than the run did unturned.
                 allowed = _allowed_misses(ruleset, target)
 
-                def misses_of(body: Body) -> tuple[float, float, dict[str, float]]:
-                    # (the targets' worst miss, the open regions' worst miss, the targets' misses)
+                def misses_of(body: Body) -> _TurnMisses:
                     misses = _carried_misses(terms, anchors, reached * ratio, body, measure)
-                    return (max(_worst_miss(misses, allowed),
-                                _worst_constraint(ruleset, registry, initial, body, target, measure)),
-                            _worst_open_region(ruleset, registry, initial, body, target, measure, open_terms, held),
-                            misses)
+                    return _TurnMisses(
+                        max(_worst_miss(misses, allowed), _worst_constraint(ruleset, registry, initial, body, target, measure)),
+                        _worst_open_region(ruleset, registry, initial, body, target, measure, open_terms, held),
+                        len(distortions(initial, body.vertices)), misses)
 
                 why, neck = "", True
                 try:
-                    unturned_targets, unturned_open, _ = misses_of(following)
-                    unturned = max(unturned_targets, unturned_open)
+                    unturned = misses_of(following)
                     turned = _turned_back(current, following, held)
-                    targets, opened, misses = misses_of(turned)
-                    if max(targets, opened) > max(unturned, 1.0):
+                    moved_by = misses_of(turned)
+                    if moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0):
                         head_alone = _turned_back(current, following, held, neck=False)
                         alone = misses_of(head_alone)
-                        if max(alone[:2]) < max(targets, opened):
-                            turned, (targets, opened, misses), neck = head_alone, alone, False
+                        if alone.worst(unturned) < moved_by.worst(unturned):
+                            turned, moved_by, neck = head_alone, alone, False
                 except MeasurementError as error:
-                    why, targets, opened = str(error), math.inf, math.inf
-                if not why and unturned_targets <= 1.0 and targets > max(unturned_targets, LAST_STEP_MISS):
+                    why = str(error)
+                if (not why and unturned.targets <= 1.0 and moved_by.targets > max(unturned.targets, LAST_STEP_MISS)
+                        and moved_by.distortions <= unturned.distortions):
                     # (a run that misses as it is has had its refits above: LAST_STEP_REFITS)
-                    moved = {key: corrections[key] * misses[key] for key in corrections}
+                    moved = {key: corrections[key] * moved_by.misses[key] for key in corrections}
                     try:
                         refit = solve(ruleset, basis, moved, solution.variables, solution.jacobian)
                         turned_again = _turned_back(current, _settled(current, refit, ruleset.solver.posture, last, held,
@@ -325,12 +325,10 @@ def scale_with_ruleset(
                     except (ScalingError, MeasurementError) as error:
                         log.debug("the last step solved again for its turn was not kept: %s", error)
                     else:
-                        if max(retried[:2]) < max(targets, opened):
-                            solution, corrections, turned, (targets, opened, misses) = refit, moved, turned_again, retried
-                missed = max(targets, opened)
-                if not why and missed > max(unturned, 1.0):
-                    what = "a target" if targets >= opened else "an open region's isometric size"
-                    why = f"turned back, the run missed {what} by {missed:.1f}× its tolerance, solved again too"
+                        if retried.worst(unturned) < moved_by.worst(unturned):
+                            solution, corrections, turned, moved_by = refit, moved, turned_again, retried
+                if not why and moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0):
+                    why = f"turned back, the run {moved_by.missing(unturned)}, solved again too"
                 if why:
                     result.warnings.append(f"the neck and the head were left turned as Eq. 9 turned them: {why}")
                 else:
@@ -394,6 +392,32 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
         sizes = {region: 1.0 + value for region, value in solution.sizes.items()}
         following = following.with_vertices(held.apply(following.vertices, isometric, sizes))
     return carry_choices(start, following)
+
+
+class _TurnMisses(NamedTuple):
+    """What an output misses, to judge the neck and the head turned back (:func:`_turned_back`):
+    the targets' worst miss (the mass, the rules, the constraints) and the open regions' worst (held
+    isometric), in units of their tolerances; how many distortions it shows (a small feature's
+    shape, lumps: :func:`allorules.measure.quality.distortions`); and the targets' misses as a refit
+    takes them."""
+
+    targets: float
+    opened: float
+    distortions: int
+    misses: dict[str, float]
+
+    def worst(self, unturned: "_TurnMisses") -> float:
+        """The worst miss, in units of its tolerance; infinite where it shows a distortion the
+        output ``unturned`` did not show (the bull 386's ear, sheared as its head turned back at
+        ×0.5, changed shape by 31 % of its size)."""
+        return math.inf if self.distortions > unturned.distortions else max(self.targets, self.opened)
+
+    def missing(self, unturned: "_TurnMisses") -> str:
+        """What it misses, in words."""
+        if self.distortions > unturned.distortions:
+            return "looked distorted (a small feature's shape or lumps)"
+        what = "a target" if self.targets >= self.opened else "an open region's isometric size"
+        return f"missed {what} by {max(self.targets, self.opened):.1f}× its tolerance"
 
 
 def _turned_back(start: Body, following: Body, held: HeldRegions, neck: bool = True) -> Body:
