@@ -61,7 +61,8 @@ def run_cli(name: str, path: Path, ratio: float, out: Path, reuse: bool) -> RunF
     report, timing, said, output, kept = (out / f"{stem}{suffix}" for suffix in
                                           (".json", ".seconds", ".said", ".obj", ".unconverged.obj"))
     if not (reuse and (report.exists() or said.exists())):
-        for old in (report, said, timing, output, kept):
+        # the labels files written beside the meshes too: the command never replaces a file unasked
+        for old in (report, said, timing, output, kept, out / f"{stem}.labels.json", out / f"{stem}.unconverged.labels.json"):
             old.unlink(missing_ok=True)
         started = time.time()
         done = subprocess.run([str(ALLORULES), "scale", str(path), "--ruleset", "quadruped", "--mass-ratio",
