@@ -306,7 +306,8 @@ def scale_with_ruleset(
                     unturned = misses_of(following)
                     turned = _turned_back(current, following, held)
                     moved_by = misses_of(turned)
-                    if moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0):
+                    if moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0) and held.ruled:
+                        # (the head alone: held at its rule's size; an open head turns with its neck only)
                         head_alone = _turned_back(current, following, held, neck=False)
                         alone = misses_of(head_alone)
                         if alone.worst(unturned) < moved_by.worst(unturned):
