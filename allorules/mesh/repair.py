@@ -26,11 +26,13 @@ from allorules.errors import MeshError
 from allorules.mesh.geometry import enclosed_volume, face_areas
 from allorules.mesh.load import load_mesh
 from allorules.mesh.topology import (
+    boundary_edges,
     cap_holes,
     corner_edges,
     count_boundary_loops,
     directed_edges,
     face_components,
+    unique_edges,
 )
 
 log = logging.getLogger(__name__)
@@ -276,9 +278,7 @@ def _weld_open_seams(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarra
     :func:`_merge_close_vertices`. A mirrored half exported without its seam welded (the
     vertices along the cut 0.2 % of an edge apart) is one surface again."""
     n = len(vertices)
-    edges = corner_edges(faces)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    boundary = unique[counts == 1]
+    boundary = boundary_edges(faces)
     if len(boundary) == 0:
         return np.arange(n), vertices
     tolerance = SEAM_TOLERANCE * float(np.median(np.linalg.norm(vertices[boundary[:, 0]] - vertices[boundary[:, 1]], axis=1)))
@@ -287,7 +287,7 @@ def _weld_open_seams(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarra
     if len(pairs) == 0:
         return np.arange(n), vertices
     pairs = np.sort(pairs, axis=1)
-    pairs = pairs[~_rows_in(pairs, unique)]
+    pairs = pairs[~_rows_in(pairs, unique_edges(faces))]
     return _union(vertices, pairs)
 
 
