@@ -304,9 +304,10 @@ def scale_with_ruleset(
                 why, neck = "", True
                 try:
                     unturned = misses_of(following)
+                    limit = max(unturned.score, 1.0)       # a turn that misses by more is not kept
                     turned = _turned_back(current, following, held)
                     moved_by = misses_of(turned)
-                    if moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0) and held.ruled:
+                    if moved_by.worst(unturned) > limit and held.ruled:
                         # (the head alone: held at its rule's size; an open head turns with its neck only)
                         head_alone = _turned_back(current, following, held, neck=False)
                         alone = misses_of(head_alone)
@@ -328,7 +329,7 @@ def scale_with_ruleset(
                     else:
                         if retried.worst(unturned) < moved_by.worst(unturned):
                             solution, corrections, turned, moved_by = refit, moved, turned_again, retried
-                if not why and moved_by.worst(unturned) > max(unturned.worst(unturned), 1.0):
+                if not why and moved_by.worst(unturned) > limit:
                     why = f"turned back, the run {moved_by.missing(unturned)}, solved again too"
                 if why:
                     result.warnings.append(f"the neck and the head were left turned as Eq. 9 turned them: {why}")
@@ -407,18 +408,23 @@ class _TurnMisses(NamedTuple):
     distortions: int
     misses: dict[str, float]
 
+    @property
+    def score(self) -> float:
+        """The worst miss of a target or an open region, in units of its tolerance."""
+        return max(self.targets, self.opened)
+
     def worst(self, unturned: "_TurnMisses") -> float:
-        """The worst miss, in units of its tolerance; infinite where it shows a distortion the
-        output ``unturned`` did not show (the bull 386's ear, sheared as its head turned back at
-        ×0.5, changed shape by 31 % of its size)."""
-        return math.inf if self.distortions > unturned.distortions else max(self.targets, self.opened)
+        """:attr:`score`, or infinite where it shows a distortion the output ``unturned`` did not
+        show (the bull 386's ear, sheared as its head turned back at ×0.5, changed shape by 31 % of
+        its size)."""
+        return math.inf if self.distortions > unturned.distortions else self.score
 
     def missing(self, unturned: "_TurnMisses") -> str:
         """What it misses, in words."""
         if self.distortions > unturned.distortions:
             return "looked distorted (a small feature's shape or lumps)"
         what = "a target" if self.targets >= self.opened else "an open region's isometric size"
-        return f"missed {what} by {max(self.targets, self.opened):.1f}× its tolerance"
+        return f"missed {what} by {self.score:.1f}× its tolerance"
 
 
 def _turned_back(start: Body, following: Body, held: HeldRegions, neck: bool = True) -> Body:
@@ -443,16 +449,24 @@ def _worst_open_region(ruleset, registry, initial: Body, body: Body, ratio: floa
                 for outcome in outcomes if outcome.held and outcome.achieved_exponent is not None), default=0.0)
 
 
+def _constraint_residuals(ruleset, registry, initial: Body, body: Body, ratio: float, measure) -> dict[str, float]:
+    """Each residual of the ruleset's constraints on ``body`` over the run from ``initial``, keyed
+    by the constraint's name (``name:residual`` for a constraint with several)."""
+    context = ConstraintContext(initial, body, ratio, measure)
+    residuals = {}
+    for use in ruleset.constraints:
+        spec = registry.constraint(use.name)
+        values = spec.residuals(context, spec.complete_parameters(use.parameters))
+        for name, residual in values.items():
+            residuals[use.name if len(values) == 1 else f"{use.name}:{name}"] = float(residual)
+    return residuals
+
+
 def _worst_constraint(ruleset, registry, initial: Body, body: Body, ratio: float, measure) -> float:
     """The largest residual of the ruleset's constraints on ``body`` over the run from ``initial``
     (as the run is judged, :func:`_finish`), in units of ``CONSTRAINT_TOLERANCE``; 0 without any."""
-    context = ConstraintContext(initial, body, ratio, measure)
-    worst = 0.0
-    for use in ruleset.constraints:
-        spec = registry.constraint(use.name)
-        for residual in spec.residuals(context, spec.complete_parameters(use.parameters)).values():
-            worst = max(worst, abs(float(residual)) / CONSTRAINT_TOLERANCE)
-    return worst
+    residuals = _constraint_residuals(ruleset, registry, initial, body, ratio, measure).values()
+    return max((abs(residual) / CONSTRAINT_TOLERANCE for residual in residuals), default=0.0)
 
 
 def _allowed_misses(ruleset, target: float) -> dict[str, float]:
@@ -642,16 +656,10 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
             misses.append(("rule", f"rule {rule.id!r} reached exponent {achieved:.3f}, target {rule.exponent:.3f}"))
     if abs(result.mass_ratio / ratio - 1.0) > MASS_TOLERANCE:
         misses.append(("mass", f"mass ratio {result.mass_ratio:.4f}, target {ratio:.4f}"))
-    context = ConstraintContext(initial, final, ratio, measure)
-    result.constraints = {}
-    for use in ruleset.constraints:
-        spec = registry.constraint(use.name)
-        values = spec.residuals(context, spec.complete_parameters(use.parameters))
-        for name, residual in values.items():
-            key = use.name if len(values) == 1 else f"{use.name}:{name}"
-            result.constraints[key] = float(residual)
-            if not abs(residual) <= CONSTRAINT_TOLERANCE:
-                misses.append(("constraint", f"constraint {key!r} is off by {100 * residual:+.1f}% over the run"))
+    result.constraints = _constraint_residuals(ruleset, registry, initial, final, ratio, measure)
+    for key, residual in result.constraints.items():
+        if not abs(residual) <= CONSTRAINT_TOLERANCE:
+            misses.append(("constraint", f"constraint {key!r} is off by {100 * residual:+.1f}% over the run"))
     _report_open_regions(result, initial, final, ruleset, registry, measure, open_terms, held)
     if ratio != 1.0:
         length = _check_trunk_length(result, initial, final, ruleset, stretched)
