@@ -93,10 +93,12 @@ def test_an_open_seam_is_welded_and_every_input_vertex_kept():
     assert enclosed_volume(prepared.vertices, prepared.faces) == pytest.approx(enclosed_volume(mesh.vertices, mesh.faces), rel=1e-3)
 
 
-def test_an_opening_wider_than_a_seam_stays_open():
+def test_an_opening_wider_than_a_seam_is_not_welded():
     prepared = prepare_mesh(_split_in_halves(sphere(), gap=0.3))
-    assert prepared.boundary_loops == 1            # two halves apart: the body is the larger one, open
     assert not any("open seam" in repair for repair in prepared.repairs)
+    # two halves apart, each half the surface: pieces, joined into the one surface they enclose
+    assert prepared.pieces is not None and prepared.boundary_loops == 0
+    assert enclosed_volume(prepared.vertices, prepared.faces) == pytest.approx(4 / 3 * np.pi, rel=0.03)
 
 
 def test_stray_parts_are_carried_along_with_the_body():
@@ -205,3 +207,52 @@ def test_real_meshes_prepare(shared_meshes, name):
     capped = cap_holes(prepared.vertices, prepared.faces)
     assert enclosed_volume(*capped) > 0
     assert np.all(np.isfinite(prepared.vertices))
+
+
+# ---------------------------------------------------------------- an animal in pieces
+
+
+def test_overlapping_pieces_are_joined_into_the_solid_they_enclose():
+    """Two unit spheres whose centres are 1 apart: the body is their union, whose volume is known
+    (two balls less their lens, π(4r + d)(2r − d)²/12), with no wall left inside."""
+    left, right = sphere(4), sphere(4)
+    left.apply_translation([-0.5, 0.0, 0.0])
+    right.apply_translation([0.5, 0.0, 0.0])
+    pieces = trimesh.util.concatenate([left, right])
+    prepared = prepare_mesh(pieces)
+    assert prepared.pieces is not None and any("joined its 2 pieces" in repair for repair in prepared.repairs)
+    union = 2 * 4 / 3 * np.pi - np.pi * (4 + 1) * (2 - 1) ** 2 / 12
+    assert enclosed_volume(prepared.vertices, prepared.faces) == pytest.approx(union, rel=0.01)
+    assert prepared.boundary_loops == 0 and len(prepared.faces) > len(pieces.faces)
+    # no inside wall: nothing of the body lies inside the other sphere's half
+    assert np.linalg.norm(prepared.vertices - [0.5, 0, 0], axis=1).min() > 0.8
+    assert np.all(prepared.source_vertex_index == -1)
+    np.testing.assert_array_equal(prepared.pieces.source_vertices, np.arange(len(pieces.vertices)))
+
+
+def test_every_piece_moves_with_the_joined_body():
+    legs = [sphere(3, radius=0.5) for _ in range(2)]
+    trunk = sphere(4)
+    for leg, x in zip(legs, (-0.5, 0.5)):
+        leg.apply_translation([x, 0.0, -0.9])
+    pieces = trimesh.util.concatenate([trunk, *legs])
+    prepared = prepare_mesh(pieces)
+    assert prepared.pieces is not None
+    # untouched, the input comes back bit for bit; scaled by 2, every piece is scaled by 2
+    np.testing.assert_array_equal(prepared.source_positions(prepared.vertices.copy()), pieces.vertices)
+    np.testing.assert_allclose(prepared.source_positions(2.0 * prepared.vertices), 2.0 * pieces.vertices, atol=1e-9)
+    # regions go to every piece's vertex from the surface under it, and back
+    body_labels = (prepared.vertices[:, 2] < -0.75).astype(np.int64)       # 1: the legs' lower halves
+    labels = prepared.source_labels(body_labels)
+    feet = pieces.vertices[:, 2] < -1.2
+    assert (labels[feet] == 1).all() and (labels[pieces.vertices[:, 2] > 0.0] == 0).all()
+    back = prepared.body_labels(labels)
+    assert np.mean(back == body_labels) > 0.97
+
+
+def test_pieces_that_enclose_nothing_are_refused():
+    square = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    other = square.copy()
+    other.apply_translation([2.0, 0.0, 0.0])
+    with pytest.raises(MeshError, match="enclose no volume"):
+        prepare_mesh(trimesh.util.concatenate([square, other]))

@@ -5,7 +5,9 @@ step and says what it changed: merge duplicate (seam) vertices, weld open seams 
 vertices that nearly touch), drop unreferenced vertices, degenerate, duplicate and non-manifold
 faces, orient faces consistently and outward, keep the largest connected part as the body and
 carry the small detached parts (eyes, teeth) along by the displacement of their nearest body
-vertex.
+vertex. An animal modelled in pieces (its largest part under JOIN_BELOW of the surface) gets as
+its body the surface its pieces enclose together (:mod:`allorules.mesh.join`), every piece's
+vertices bound to it.
 :func:`cap_holes` closes boundary loops for volume measurement only; output meshes keep their holes.
 
 The :class:`PreparedMesh` remembers how every vertex of the input maps to the body, so that a
@@ -24,6 +26,7 @@ from scipy.spatial import cKDTree
 
 from allorules.errors import MeshError
 from allorules.mesh.geometry import enclosed_volume, face_areas
+from allorules.mesh.join import JOIN_BELOW, join_parts
 from allorules.mesh.load import load_mesh
 from allorules.mesh.topology import (
     boundary_edges,
@@ -34,6 +37,7 @@ from allorules.mesh.topology import (
     face_components,
     unique_edges,
 )
+from allorules.mesh.transfer import Binding, bind, carry_deformation, carry_labels
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +52,16 @@ class DetachedPart:
 
     source_vertices: np.ndarray   # indices into the input's vertices
     anchors: np.ndarray           # for each, the nearest body vertex
+
+
+@dataclass(frozen=True)
+class JoinedPieces:
+    """An animal modelled in pieces, its body the surface they enclose together
+    (:mod:`allorules.mesh.join`): ``source_vertices`` are bound to that surface by ``binding`` and
+    move, turn and scale with it (:func:`allorules.mesh.transfer.carry_deformation`)."""
+
+    source_vertices: np.ndarray   # indices into the input's vertices (every vertex a face uses)
+    binding: Binding              # each one's place on the body and offset from it
 
 
 @dataclass
@@ -66,12 +80,14 @@ class PreparedMesh:
     source_vertex_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     detached: list[DetachedPart] = field(default_factory=list)
     boundary_loops: int = 0
+    pieces: JoinedPieces | None = None      # the body joined from pieces, not the input's own vertices
 
     def source_positions(self, body_vertices: np.ndarray) -> np.ndarray:
         """Positions for every input vertex after the body moved to ``body_vertices``.
 
         Body vertices take their new place; detached parts move rigidly with the displacement of
-        their nearest body vertex; unreferenced input vertices stay where they were.
+        their nearest body vertex; on a body joined from pieces every piece's vertex moves with the
+        surface under it; unreferenced input vertices stay where they were.
         """
         if self.source is None:
             return np.asarray(body_vertices, dtype=float).copy()
@@ -82,6 +98,9 @@ class PreparedMesh:
         displacement = np.asarray(body_vertices, dtype=float) - self.vertices
         for part in self.detached:
             positions[part.source_vertices] = original[part.source_vertices] + displacement[part.anchors]
+        if self.pieces is not None:
+            bound = self.pieces.source_vertices
+            positions[bound] = carry_deformation(self.pieces.binding, self.vertices, body_vertices, original[bound])
         return positions
 
     @property
@@ -100,15 +119,21 @@ class PreparedMesh:
         labels[in_body] = body_labels[self.source_vertex_index[in_body]]
         for part in self.detached:
             labels[part.source_vertices] = body_labels[part.anchors]
+        if self.pieces is not None:
+            labels[self.pieces.source_vertices] = carry_labels(self.pieces.binding, body_labels)
         return labels
 
     def body_labels(self, source_labels: np.ndarray, unlabelled: int = -1) -> np.ndarray:
         """A label for every body vertex from the input's (``source_labels``, one per input vertex):
-        where repair merged input vertices into one, the last of them; a body vertex no input vertex
-        became (none today) ``unlabelled``."""
+        where repair merged input vertices into one, the last of them; on a body joined from pieces,
+        the nearest piece vertex's; a body vertex no input vertex became (none today) ``unlabelled``."""
         source_labels = np.asarray(source_labels)
         if self.source is None:
             return source_labels.copy()
+        if self.pieces is not None:
+            bound = self.pieces.source_vertices
+            _, nearest = cKDTree(np.asarray(self.source.vertices, dtype=np.float64)[bound]).query(self.vertices)
+            return source_labels[bound[nearest]]
         labels = np.full(len(self.vertices), unlabelled, dtype=source_labels.dtype)
         in_body = self.source_vertex_index >= 0
         labels[self.source_vertex_index[in_body]] = source_labels[in_body]
@@ -170,30 +195,39 @@ def prepare_mesh(mesh) -> PreparedMesh:
     if len(faces) == 0:
         raise MeshError(f"{name}: no usable faces remain after removing degenerate ones")
 
-    # 3. Keep the largest connected part (by area) as the body.
+    unreferenced = len(vertices) - len(np.unique(faces))
+
+    # 3. Keep the largest connected part (by area) as the body; where it holds too little of the
+    # surface the animal is modelled in pieces (legs pushed into a trunk): join them into one.
     component = face_components(faces)
     areas = face_areas(vertices, faces)
     part_area = np.bincount(component, weights=areas)
     body_part = int(np.argmax(part_area))
-    in_body_face = component == body_part
-    if len(part_area) > 1:
-        share = part_area[body_part] / part_area.sum()
+    share = part_area[body_part] / part_area.sum()
+    joined = len(part_area) > 1 and share < JOIN_BELOW
+    if joined:
+        try:
+            vertices, faces = join_parts(vertices, faces)
+        except MeshError as error:
+            raise MeshError(f"{name}: {error}") from None
+        repairs.append(
+            f"joined its {len(part_area)} pieces into one surface of {len(vertices)} vertices (the largest "
+            f"held only {share:.0%} of the surface); every piece's vertices move with it"
+        )
+        component = face_components(faces)
+        part_area = np.bincount(component, weights=face_areas(vertices, faces))
+        body_part = int(np.argmax(part_area))
+    elif len(part_area) > 1:
         repairs.append(
             f"kept the largest of {len(part_area)} parts as the body ({share:.0%} of the surface); "
             f"{len(part_area) - 1} small parts are carried along"
         )
-        if share < 0.8:
-            log.warning(
-                "%s: the largest part holds only %.0f%% of the surface; if the body is split into "
-                "pieces, join them in your modelling tool", name, 100 * share,
-            )
-    body_faces = faces[in_body_face]
+    body_faces = faces[component == body_part]
 
     # 4. Drop unreferenced vertices (renumber the body's vertices).
     used = np.unique(body_faces)
     renumber = -np.ones(len(vertices), dtype=np.int64)
     renumber[used] = np.arange(len(used))
-    unreferenced = len(vertices) - len(np.unique(faces))
     if unreferenced:
         repairs.append(f"dropped {unreferenced} unreferenced vertices")
     body_vertices = vertices[used]
@@ -217,14 +251,19 @@ def prepare_mesh(mesh) -> PreparedMesh:
         repairs.append(f"found {loops} holes; they are capped for volume measurement only, never in the output")
 
     # Map input vertices to body vertices; every other vertex a face of the input uses (a detached
-    # part's, or one left only on a face dropped above) follows its nearest body vertex. (A large
-    # body keeps its own vertices: runs work on a working mesh made from it, allorules.mesh.working.)
+    # part's, or one left only on a face dropped above) follows its nearest body vertex, or, on a
+    # body joined from pieces, the surface under it. (A large body keeps its own vertices: runs work
+    # on a working mesh made from it, allorules.mesh.working.)
     source = mesh
     detached: list[DetachedPart] = []
-    source_vertex_index = renumber[merged_index]
-    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)])
+    pieces = None
+    source_vertex_index = renumber[merged_index] if not joined else np.full(source_count, -1, dtype=np.int64)
+    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)]) if not joined else np.zeros(0, np.int64)
     other = other[renumber[other] < 0]
-    if len(other):
+    if joined:
+        on_pieces = np.unique(np.asarray(mesh.faces, dtype=np.int64))
+        pieces = JoinedPieces(on_pieces, bind(np.asarray(mesh.vertices, dtype=np.float64)[on_pieces], body_vertices, body_faces))
+    elif len(other):
         detached_source = np.flatnonzero(np.isin(merged_index, other))
         _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
         detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
@@ -239,6 +278,7 @@ def prepare_mesh(mesh) -> PreparedMesh:
         source_vertex_index=source_vertex_index,
         detached=detached,
         boundary_loops=loops,
+        pieces=pieces,
     )
 
 

@@ -821,6 +821,17 @@ class Run:
             return self.body
         return self.working.labels_to_user(self.body, Body(self.prepared.vertices, self.prepared.faces))
 
+    def _written(self) -> tuple[Body, np.ndarray]:
+        """The user's body with the run's regions and where the run moved it; for an animal in
+        pieces, the pieces themselves (their faces are what is written, not the joined surface's)."""
+        user = self.user_body()
+        if self.prepared.pieces is None:
+            return user, self.body_vertices()
+        source = self.prepared.source
+        pieces = Body(np.asarray(source.vertices, dtype=float), np.asarray(source.faces, dtype=np.int64),
+                      self.prepared.source_labels(user.labels), user.region_names)
+        return pieces, self.output_vertices()
+
     def quality(self) -> QualityReport:
         """What an artist would look for in the output (flipped faces, self-intersections, lumps,
         small features, legs, rules met), measured once."""
@@ -829,9 +840,9 @@ class Run:
                                            tolerance=EXPONENT_TOLERANCE)
             unfolding = self.unfolding()
             carried = self.working is not None and self.working.binding is not None
-            if carried or unfolding.folded:
+            if carried or unfolding.folded or self.prepared.pieces is not None:
                 # measured on the working mesh (or before unfolding); the faces written counted too
-                self._quality.written_flipped = flipped_faces(self.user_body(), self.body_vertices())
+                self._quality.written_flipped = flipped_faces(*self._written())
                 self._quality.unfolded = unfolding.unfolded
                 self._quality.unfold_move = unfolding.largest_move / max(float(np.ptp(unfolding.vertices, axis=0).max()), 1e-300)
         return self._quality
@@ -995,7 +1006,14 @@ def save_picture(run: Run, path: str | Path, *, output_name: str = "output") -> 
     from allorules.output.render import render_comparison
 
     body = run.body
-    return render_comparison([(body.vertices, body.faces, "input"), (run.result.body.vertices, body.faces, output_name)],
+    if run.prepared.pieces is not None:
+        # an animal in pieces: its working surface is the solid they enclose, not what the user
+        # modelled; draw the pieces themselves, as they are written
+        source = run.prepared.source
+        before, faces, after = np.asarray(source.vertices), np.asarray(source.faces), run.output_vertices()
+    else:
+        before, faces, after = body.vertices, body.faces, run.result.body.vertices
+    return render_comparison([(before, faces, "input"), (after, faces, output_name)],
                              path=path, normalise_size=False, frame=body.frame, shared_ground=True)
 
 
