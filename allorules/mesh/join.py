@@ -104,13 +104,13 @@ def _winding_on_grid(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray
 
 
 def _surface_samples(vertices: np.ndarray, faces: np.ndarray, gap: float) -> np.ndarray:
-    """Points on every triangle no farther than about ``gap`` apart (each triangle split into
-    k² pieces, k from its longest edge), and the vertices."""
+    """Points on every triangle no farther than about ``gap`` apart: the vertices, and where a
+    triangle is longer than the gap, its points on a grid of k² pieces (k from its longest edge)."""
     corners = vertices[faces]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     splits = np.maximum(1, np.ceil(longest / gap).astype(int))
     points = [vertices]
-    for k in np.unique(splits):
+    for k in np.unique(splits[splits > 1]):      # a triangle shorter than the gap: its corners
         chosen = corners[splits == k]
         i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
         keep = i + j <= k
