@@ -280,3 +280,30 @@ def test_a_working_record_gives_back_its_working_mesh_on_its_own_body(tmp_path):
     # made for other faces, the record is not read (the labels are, with a warning)
     other = Body(horse.vertices, horse.faces[::-1])
     assert read_labels_file(tmp_path / "horse.labels.json", other).working is None
+
+
+def test_an_animal_in_pieces_is_written_piece_by_piece_with_no_labels_file(tmp_path):
+    """Its output keeps every piece's vertices and faces, scaled with the joined surface; no labels
+    file is written beside it (read again, its pieces are joined into a surface of other vertices)."""
+    import trimesh
+    from pieces import pieces_quadruped
+
+    from allorules.runs import pipeline
+
+    mesh, marks = pieces_quadruped()
+    mesh.export(tmp_path / "toy.obj")
+    run = pipeline.run(tmp_path / "toy.obj", pipeline.GlobalScaling(RATIO), modes=12, working_vertices=2000,
+                       use_cache=False)
+    assert run.prepared.pieces is not None
+    pipeline.save_output(run, tmp_path / "big.obj")
+    pipeline.save_picture(run, tmp_path / "big.png")
+    written = trimesh.load(tmp_path / "big.obj", force="mesh", process=False)
+    assert written.vertices.shape == mesh.vertices.shape and np.array_equal(written.faces, mesh.faces)
+    assert np.isfinite(written.vertices).all()
+    assert not labels_file_beside(tmp_path / "big.obj").exists() and (tmp_path / "big.png").stat().st_size > 0
+    # every piece moved: the muzzle forward, the feet still on the ground (Z up)
+    grown = np.ptp(written.vertices, axis=0) / np.ptp(mesh.vertices, axis=0)
+    assert np.all(grown > 1.0) and np.all(grown < RATIO)
+    feet = np.concatenate([marks["forelimbs"], marks["hindlimbs"]])
+    height = np.ptp(mesh.vertices[:, 2])
+    assert abs(written.vertices[feet, 2].min() - mesh.vertices[feet, 2].min()) < 0.005 * height

@@ -968,9 +968,13 @@ def save_output(run: Run, path: str | Path, *, overwrite: bool = False) -> SaveR
     and, where the run had regions, the regions it measured as the output's own labels file beside
     it (``NAME.labels.json``), so that the output is measured again with the run's regions and
     axes, not relabelled as another animal; the input is never overwritten. ``save_mesh`` says on
-    the log what the export could not carry over."""
+    the log what the export could not carry over. An animal in pieces gets no labels file: its
+    output is joined afresh when read, into a surface of other vertices than the input's."""
     prepared = run.prepared
-    labels = labels_file_beside(path) if run.body.labels is not None else None
+    labels = labels_file_beside(path) if run.body.labels is not None and prepared.pieces is None else None
+    if prepared.pieces is not None:
+        log.info("no labels file beside %s: an animal in pieces is joined afresh when read (allorules measure "
+                 "labels it again; give it --forward if its input needed it)", path)
     if labels is not None:      # checked before anything is written
         _check_output_labels(run, labels, overwrite)
     if prepared.source is not None:
