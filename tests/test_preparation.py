@@ -248,6 +248,15 @@ def test_every_piece_moves_with_the_joined_body():
     assert (labels[feet] == 1).all() and (labels[pieces.vertices[:, 2] > 0.0] == 0).all()
     back = prepared.body_labels(labels)
     assert np.mean(back == body_labels) > 0.97
+    # the faces buried in the other pieces (the legs' tops in the trunk, the trunk's bottom in the
+    # legs) are told from those anyone sees
+    centres = pieces.vertices[pieces.faces].mean(axis=1)
+    inside_trunk = np.linalg.norm(centres, axis=1) < 0.95
+    inside_leg = np.min([np.linalg.norm(centres - [x, 0.0, -0.9], axis=1) for x in (-0.5, 0.5)], axis=0) < 0.45
+    buried = prepared.pieces.buried
+    assert buried.sum() > 0.05 * len(buried)
+    assert np.all(inside_trunk[buried] | inside_leg[buried])
+    assert not buried[(centres[:, 2] > 0.5) | (centres[:, 2] < -1.2)].any()     # the back, the feet
 
 
 def test_pieces_that_enclose_nothing_are_refused():

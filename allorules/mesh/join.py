@@ -16,6 +16,7 @@ UVs (:class:`allorules.mesh.repair.PreparedMesh`).
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,15 +32,28 @@ JOIN_CELLS = 192
 # above it the other pieces are eyes, teeth and such, carried along by the body.
 JOIN_BELOW = 0.8
 WINDING_LEVEL = 0.5   # inside the solid: winding number above ½
+# A piece's face whose corners all lie deeper inside the joined surface than this many grid cells
+# is buried (a leg's top inside the trunk): nobody sees it, and it may fold unseen.
+BURIED_CELLS = 2
 # The winding number is smooth away from the pieces' surfaces: it is computed exactly on a grid
 # COARSE times coarser, and on the fine grid only in the coarse cells next to a surface.
 COARSE = 4
 
 
-def join_parts(vertices: np.ndarray, faces: np.ndarray, cells: int = JOIN_CELLS) -> tuple[np.ndarray, np.ndarray]:
-    """The outer surface of the solid that the mesh's pieces enclose together, as (vertices, faces)
-    oriented outward; its largest connected part where pieces stand apart. Raises
-    :class:`MeshError` where the pieces enclose nothing (open sheets only)."""
+@dataclass(frozen=True)
+class JoinedSurface:
+    """The surface of the solid the pieces enclose together, oriented outward, and the size of the
+    grid cell it was contoured on (the detail it keeps)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    cell: float
+
+
+def join_parts(vertices: np.ndarray, faces: np.ndarray, cells: int = JOIN_CELLS) -> JoinedSurface:
+    """The outer surface of the solid that the mesh's pieces enclose together (every connected part
+    of it; the body is the largest). Raises :class:`MeshError` where the pieces enclose nothing
+    (open sheets only)."""
     from skimage.measure import marching_cubes
 
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -59,7 +73,7 @@ def join_parts(vertices: np.ndarray, faces: np.ndarray, cells: int = JOIN_CELLS)
     joined_faces = np.ascontiguousarray(joined_faces[:, ::-1], dtype=np.int64)
     log.debug("joined %d vertices of pieces into a %d-vertex surface (grid %s, cell %.4g)",
               len(vertices), len(joined_vertices), winding.shape, spacing)
-    return joined_vertices, joined_faces
+    return JoinedSurface(joined_vertices, joined_faces, spacing)
 
 
 def _pieces_outward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -118,3 +132,11 @@ def _surface_samples(vertices: np.ndarray, faces: np.ndarray, gap: float) -> np.
         weights = np.stack([1 - a - b, a, b], axis=1)          # (m, 3) barycentric
         points.append(np.einsum("mc,fcd->fmd", weights, chosen).reshape(-1, 3))
     return np.concatenate(points)
+
+
+
+def buried_faces(faces: np.ndarray, depth: np.ndarray, cell: float) -> np.ndarray:
+    """Per face of the pieces, whether it is buried in the joined solid: each of its corners deeper
+    inside the joined surface than BURIED_CELLS grid cells of size ``cell`` (``depth``: per vertex,
+    how far inside the surface it lies, negative outside)."""
+    return np.all(np.asarray(depth)[np.asarray(faces, dtype=np.int64)] > BURIED_CELLS * cell, axis=1)

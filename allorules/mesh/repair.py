@@ -25,8 +25,8 @@ import scipy.sparse.csgraph as csgraph
 from scipy.spatial import cKDTree
 
 from allorules.errors import MeshError
-from allorules.mesh.geometry import enclosed_volume, face_areas
-from allorules.mesh.join import JOIN_BELOW, join_parts
+from allorules.mesh.geometry import enclosed_volume, face_areas, face_normals
+from allorules.mesh.join import JOIN_BELOW, buried_faces, join_parts
 from allorules.mesh.load import load_mesh
 from allorules.mesh.topology import (
     boundary_edges,
@@ -62,6 +62,7 @@ class JoinedPieces:
 
     source_vertices: np.ndarray   # indices into the input's vertices (every vertex a face uses)
     binding: Binding              # each one's place on the body and offset from it
+    buried: np.ndarray            # per input face: deep inside the body, unseen (a leg's top in the trunk)
 
 
 @dataclass
@@ -207,9 +208,10 @@ def prepare_mesh(mesh) -> PreparedMesh:
     joined = len(part_area) > 1 and share < JOIN_BELOW
     if joined:
         try:
-            vertices, faces = join_parts(vertices, faces)
+            joined_surface = join_parts(vertices, faces)
         except MeshError as error:
             raise MeshError(f"{name}: {error}") from None
+        vertices, faces = joined_surface.vertices, joined_surface.faces
         repairs.append(
             f"joined its {len(part_area)} pieces into one surface of {len(vertices)} vertices (the largest "
             f"held only {share:.0%} of the surface); every piece's vertices move with it"
@@ -261,8 +263,14 @@ def prepare_mesh(mesh) -> PreparedMesh:
     other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)]) if not joined else np.zeros(0, np.int64)
     other = other[renumber[other] < 0]
     if joined:
-        on_pieces = np.unique(np.asarray(mesh.faces, dtype=np.int64))
-        pieces = JoinedPieces(on_pieces, bind(np.asarray(mesh.vertices, dtype=np.float64)[on_pieces], body_vertices, body_faces))
+        source_faces = np.asarray(mesh.faces, dtype=np.int64)
+        on_pieces = np.unique(source_faces)
+        binding = bind(np.asarray(mesh.vertices, dtype=np.float64)[on_pieces], body_vertices, body_faces)
+        depth = np.zeros(len(mesh.vertices))
+        outward = face_normals(body_vertices, body_faces)[binding.triangle]
+        outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
+        depth[on_pieces] = -np.einsum("ij,ij->i", binding.offset, outward)
+        pieces = JoinedPieces(on_pieces, binding, buried_faces(source_faces, depth, joined_surface.cell))
     elif len(other):
         detached_source = np.flatnonzero(np.isin(merged_index, other))
         _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])

@@ -823,12 +823,14 @@ class Run:
 
     def _written(self) -> tuple[Body, np.ndarray]:
         """The user's body with the run's regions and where the run moved it; for an animal in
-        pieces, the pieces themselves (their faces are what is written, not the joined surface's)."""
+        pieces, the pieces themselves (their faces are what is written, not the joined surface's),
+        but for the faces buried in the body, which nobody sees."""
         user = self.user_body()
         if self.prepared.pieces is None:
             return user, self.body_vertices()
         source = self.prepared.source
-        pieces = Body(np.asarray(source.vertices, dtype=float), np.asarray(source.faces, dtype=np.int64),
+        seen = np.asarray(source.faces, dtype=np.int64)[~self.prepared.pieces.buried]
+        pieces = Body(np.asarray(source.vertices, dtype=float), seen,
                       self.prepared.source_labels(user.labels), user.region_names)
         return pieces, self.output_vertices()
 
