@@ -228,6 +228,10 @@ def test_overlapping_pieces_are_joined_into_the_solid_they_enclose():
     assert np.linalg.norm(prepared.vertices - [0.5, 0, 0], axis=1).min() > 0.8
     assert np.all(prepared.source_vertex_index == -1)
     np.testing.assert_array_equal(prepared.pieces.source_vertices, np.arange(len(pieces.vertices)))
+    # a piece modelled inside out is turned outward first, not subtracted from its neighbour
+    right.invert()
+    inside_out = prepare_mesh(trimesh.util.concatenate([left, right]))
+    assert enclosed_volume(inside_out.vertices, inside_out.faces) == pytest.approx(union, rel=0.01)
 
 
 def test_every_piece_moves_with_the_joined_body():

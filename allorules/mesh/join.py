@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from allorules.errors import MeshError
-from allorules.mesh.topology import face_components
+from allorules.mesh.geometry import enclosed_volume
+from allorules.mesh.topology import face_parts
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +81,9 @@ def _pieces_outward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The faces with every piece that encloses a negative volume turned outward (a piece modelled
     inside out would cancel its neighbour's winding number where they overlap)."""
     faces = np.array(faces, dtype=np.int64)
-    piece = face_components(faces)
-    corners = vertices[faces]
-    signed = np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])) / 6.0
-    inside_out = np.bincount(piece, weights=signed) < 0
-    flip = inside_out[piece]
-    faces[flip] = faces[flip][:, ::-1]
+    for piece in face_parts(faces):
+        if enclosed_volume(vertices, faces[piece]) < 0:
+            faces[piece] = faces[piece][:, ::-1]
     return np.ascontiguousarray(faces)
 
 
@@ -132,7 +130,6 @@ def _surface_samples(vertices: np.ndarray, faces: np.ndarray, gap: float) -> np.
         weights = np.stack([1 - a - b, a, b], axis=1)          # (m, 3) barycentric
         points.append(np.einsum("mc,fcd->fmd", weights, chosen).reshape(-1, 3))
     return np.concatenate(points)
-
 
 
 def buried_faces(faces: np.ndarray, depth: np.ndarray, cell: float) -> np.ndarray:
