@@ -1,6 +1,8 @@
 """``allorules scale`` as users run it: outputs in the input's layout, --png, never the input."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -22,6 +24,20 @@ def test_scale_writes_mesh_report_and_before_after_picture(tmp_path):
     assert np.array_equal(loaded.faces, original.faces)       # connectivity kept
     assert np.all(np.isfinite(loaded.vertices)) and not np.allclose(loaded.vertices, original.vertices)
     assert picture.stat().st_size > 5_000 and report.exists()
+
+
+def test_a_raw_power_law_on_a_mesh_above_the_working_size_is_written_with_its_quality(tmp_path, capsys):
+    """--global --alpha on a body that gets a working mesh: nothing is labelled, and the faces
+    written are still counted (it crashed carrying no regions back to the user's body)."""
+    source = tmp_path / "bone.obj"
+    trimesh.creation.capsule(height=3.0, radius=0.4, count=[48, 48]).export(source)
+    output, report = tmp_path / "thin.obj", tmp_path / "thin.json"
+    code = main(["scale", str(source), "--global", "--alpha", "-0.1", "--modes", "30", "--working-vertices", "2000",
+                 "--placement", "centroid", "-o", str(output), "--report", str(report)])
+    assert code == 0, capsys.readouterr().err
+    document = json.loads(report.read_text())
+    assert document["working_mesh"]["method"] == "remeshed" and "written_flipped_faces" in document["quality"]
+    assert trimesh.load(output, process=False).vertices.shape == trimesh.load(source, process=False).vertices.shape
 
 
 def test_scale_refuses_to_write_over_its_input(tmp_path, capsys):

@@ -87,7 +87,7 @@ def _up_and_feet(body: Body, up=None) -> tuple[np.ndarray, tuple[np.ndarray, ...
         up = -stance_down(limbs, None)
     else:
         raise GroundError("cannot tell which way is up: label the body (allorules segment) or give --up, "
-                          "or keep the centroid in place (--anchor centroid)")
+                          "or keep the centroid in place (--placement centroid)")
     up = up / np.linalg.norm(up)
     if limbs:
         feet = tuple(limb.mesh.vertex_index[limb.field >= limb.levels[-1]] for limb in limbs)

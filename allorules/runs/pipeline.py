@@ -209,9 +209,11 @@ class Working:
 
     def labels_to_user(self, body: Body, user: Body) -> Body:
         """The user's body with the working body's regions (each user vertex takes its working
-        triangle's)."""
+        triangle's); unlabelled where the working body is (a raw Eq. 4 run)."""
         if self.binding is None:
             return body
+        if body.labels is None:
+            return user
         return user.with_labels(carry_labels(self.binding, body.labels), body.region_names, body.labelling, body.frame)
 
     def to_user(self, working_before: np.ndarray, working_after: np.ndarray, user_before: np.ndarray) -> np.ndarray:
@@ -830,8 +832,8 @@ class Run:
             return user, self.body_vertices()
         source = self.prepared.source
         seen = np.asarray(source.faces, dtype=np.int64)[~self.prepared.pieces.buried]
-        pieces = Body(np.asarray(source.vertices, dtype=float), seen,
-                      self.prepared.source_labels(user.labels), user.region_names)
+        labels = None if user.labels is None else self.prepared.source_labels(user.labels)   # raw Eq. 4: none
+        pieces = Body(np.asarray(source.vertices, dtype=float), seen, labels, user.region_names)
         return pieces, self.output_vertices()
 
     def quality(self) -> QualityReport:
