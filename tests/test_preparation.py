@@ -224,7 +224,7 @@ def test_overlapping_pieces_are_joined_into_the_solid_they_enclose():
     union = 2 * 4 / 3 * np.pi - np.pi * (4 + 1) * (2 - 1) ** 2 / 12
     assert enclosed_volume(prepared.vertices, prepared.faces) == pytest.approx(union, rel=0.01)
     assert prepared.boundary_loops == 0 and len(prepared.faces) > len(pieces.faces)
-    # no inside wall: nothing of the body lies inside the other sphere's half
+    # no inside wall: the left sphere's surface inside the right one (down to its centre) is gone
     assert np.linalg.norm(prepared.vertices - [0.5, 0, 0], axis=1).min() > 0.8
     assert np.all(prepared.source_vertex_index == -1)
     np.testing.assert_array_equal(prepared.pieces.source_vertices, np.arange(len(pieces.vertices)))
