@@ -259,22 +259,17 @@ def prepare_mesh(mesh) -> PreparedMesh:
     source = mesh
     detached: list[DetachedPart] = []
     pieces = None
-    source_vertex_index = renumber[merged_index] if not joined else np.full(source_count, -1, dtype=np.int64)
-    other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)]) if not joined else np.zeros(0, np.int64)
-    other = other[renumber[other] < 0]
     if joined:
-        source_faces = np.asarray(mesh.faces, dtype=np.int64)
-        on_pieces = np.unique(source_faces)
-        binding = bind(np.asarray(mesh.vertices, dtype=np.float64)[on_pieces], body_vertices, body_faces)
-        depth = np.zeros(len(mesh.vertices))
-        outward = face_normals(body_vertices, body_faces)[binding.triangle]
-        outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
-        depth[on_pieces] = -np.einsum("ij,ij->i", binding.offset, outward)
-        pieces = JoinedPieces(on_pieces, binding, buried_faces(source_faces, depth, joined_surface.cell))
-    elif len(other):
-        detached_source = np.flatnonzero(np.isin(merged_index, other))
-        _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
-        detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
+        source_vertex_index = np.full(source_count, -1, dtype=np.int64)
+        pieces = _bound_pieces(mesh, body_vertices, body_faces, joined_surface.cell)
+    else:
+        source_vertex_index = renumber[merged_index]
+        other = np.unique(merged_index[np.asarray(mesh.faces, dtype=np.int64)])
+        other = other[renumber[other] < 0]
+        if len(other):
+            detached_source = np.flatnonzero(np.isin(merged_index, other))
+            _, anchors = cKDTree(body_vertices).query(np.asarray(mesh.vertices)[detached_source])
+            detached.append(DetachedPart(detached_source, np.asarray(anchors, dtype=np.int64)))
     for line in repairs:
         log.debug("prepare: %s", line)
     return PreparedMesh(
@@ -288,6 +283,19 @@ def prepare_mesh(mesh) -> PreparedMesh:
         boundary_loops=loops,
         pieces=pieces,
     )
+
+
+def _bound_pieces(mesh, body_vertices: np.ndarray, body_faces: np.ndarray, cell: float) -> JoinedPieces:
+    """Every vertex a face of the input uses, bound to the body joined from its pieces, and which
+    of its faces lie buried in the body (each vertex's depth along the surface's outward normal)."""
+    source_faces = np.asarray(mesh.faces, dtype=np.int64)
+    on_pieces = np.unique(source_faces)
+    binding = bind(np.asarray(mesh.vertices, dtype=np.float64)[on_pieces], body_vertices, body_faces)
+    outward = face_normals(body_vertices, body_faces)[binding.triangle]
+    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-300)
+    depth = np.zeros(len(mesh.vertices))
+    depth[on_pieces] = -np.einsum("ij,ij->i", binding.offset, outward)
+    return JoinedPieces(on_pieces, binding, buried_faces(source_faces, depth, cell))
 
 
 # --- geometry helpers (plain numpy) ---------------------------------------------------------
