@@ -427,6 +427,53 @@ def test_regions_go_to_every_input_vertex_and_come_back_from_them():
         pipeline.VertexRegions(regions.labels + 10, regions.region_names, "vertex groups").on(prepared)
 
 
+@pytest.mark.parametrize("second_misses", [False, True])
+def test_a_run_that_misses_on_a_coarse_body_is_made_again_on_it_split_finer(monkeypatch, second_misses):
+    """A body under SPLIT_BELOW vertices is used as it is; where its run misses, the run is made
+    again on the body split at its edges' midpoints (the same surface), with the regions the
+    labeller found on the body as it comes (it labels once). The run kept is the one that
+    converged, on every vertex of the user's body, its report naming the mesh it missed on; where
+    both miss, the first stands and names the split."""
+    from dataclasses import replace as replaced
+
+    from allorules.mesh.working import SPLIT_BELOW
+
+    horse = generate_quadruped("horse", 600)
+    real_scale, real_label = pipeline.scale, pipeline.label
+    calls: list[int] = []
+    labelled: list[int] = []
+
+    def misses(body, scaling, **options):
+        result = real_scale(body, scaling, **options)
+        calls.append(len(body.vertices))
+        missed = len(calls) == 1 or second_misses
+        return replaced(result, converged=False, messages=[f"forced miss {len(calls)}"]) if missed else result
+
+    def segmenter_labels(body, **options):
+        labelled.append(len(body.vertices))
+        return real_label(body, **options)
+
+    monkeypatch.setattr(pipeline, "scale", misses)
+    monkeypatch.setattr(pipeline, "label", segmenter_labels)
+    scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 1.05)
+    run = pipeline.run(Body(horse.vertices, horse.faces), scaling, modes=30, use_cache=False)
+
+    count = len(horse.vertices)
+    assert len(calls) == 2 and calls[0] == count and SPLIT_BELOW <= calls[1] < 4 * SPLIT_BELOW
+    assert labelled == [count]                           # labelled once, on the body as it comes
+    assert run.output_vertices().shape == horse.vertices.shape
+    if second_misses:
+        assert not run.converged and run.working.mesh.is_source
+        assert [(other.vertices, other.missed) for other in run.working.also_tried] == [(calls[1], "forced miss 2")]
+        return
+    assert run.converged and run.working.mesh.method == "split" and len(run.working.mesh.vertices) == calls[1]
+    assert np.array_equal(run.working.mesh.vertices[:count], horse.vertices)    # the same surface, split
+    assert run.report()["working_mesh"]["also_tried"] == [{"vertices": count, "missed": "forced miss 1"}]
+    carried = np.asarray(run.user_body().region_names, dtype=object)[run.user_body().labels]
+    truth = labels_as_names(fold_regions(horse.body(), pipeline.wanted_regions(load_ruleset("quadruped"))))
+    assert np.mean(carried == truth) > 0.9
+
+
 @pytest.mark.parametrize("given", [True, False])
 def test_a_run_that_misses_on_its_working_mesh_is_made_again_on_a_coarser_one(monkeypatch, given):
     """Where the run misses on the default working mesh (here the body itself), it is made again

@@ -9,10 +9,12 @@ from allorules.errors import MeshError
 from allorules.mesh.working import (
     MAX_WORKING_VERTICES,
     MIN_WORKING_VERTICES,
+    SPLIT_BELOW,
     WORKING_VERTICES,
     check_working_vertices,
     flip_flat_triangles,
     make_working_mesh,
+    split_working_mesh,
     triangle_quality,
 )
 
@@ -23,6 +25,24 @@ def test_a_body_at_or_below_the_working_size_is_used_as_it_is() -> None:
     working = make_working_mesh(vertices, faces, 2562)
     assert working.is_source and working.vertices is vertices and working.faces is faces
     assert make_working_mesh(vertices, faces).is_source       # the default is larger
+
+
+def test_a_coarse_body_split_finer_is_the_same_surface_with_its_own_vertices_first() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=2)          # 162 vertices: split twice, 2,562
+    mesh.vertices *= [2.0, 1.0, 0.7]
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    assert make_working_mesh(vertices, faces).is_coarse_source  # used as it is first
+    working = split_working_mesh(vertices, faces)
+    assert working.method == "split" and not working.is_source and working.source_vertices == 162
+    assert len(working.vertices) == 2562 >= SPLIT_BELOW and len(working.faces) == 16 * len(faces)
+    assert np.array_equal(working.vertices[:len(vertices)], vertices)       # unmoved, in their order
+    from allorules.mesh.geometry import face_areas
+    from allorules.mesh.transfer import bind
+
+    assert np.abs(bind(working.vertices, vertices, faces).offset).max() < 1e-12   # every vertex on the body
+    assert np.isclose(face_areas(working.vertices, working.faces).sum(), face_areas(vertices, faces).sum())
+    assert trimesh.Trimesh(working.vertices, working.faces, process=False).is_volume
+    assert not make_working_mesh(working.vertices, working.faces).is_coarse_source
 
 
 def test_a_larger_body_is_remeshed_to_the_size_with_good_triangles(generated_horse) -> None:

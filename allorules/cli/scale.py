@@ -285,12 +285,13 @@ def run(arguments: argparse.Namespace) -> int:
 
 
 def coarser_working_hint(working) -> str:
-    """For a run that missed: the coarser working meshes it was made again on, and missed on too
-    (:func:`allorules.runs.pipeline.run` tries them where the default working mesh misses)."""
+    """For a run that missed: the other working meshes it was made again on (coarser ones, or a
+    coarse body split finer), and missed on too (:func:`allorules.runs.pipeline.run` tries them
+    where the default working mesh misses)."""
     tried = () if working is None else working.also_tried
     if not tried:
         return ""
-    return ("; made again on coarser working meshes, it missed there too ("
+    return ("; made again on other working meshes, it missed there too ("
             + "; ".join(f"{other.vertices:,} vertices: {other.missed}" for other in tried) + ")")
 
 

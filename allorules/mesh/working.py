@@ -14,6 +14,9 @@ a mesh of a fixed, documented size and triangle quality made from the user's pre
   :data:`DECIMATE_FIRST` × ``target`` vertices it is first brought down to that many by quadric
   decimation (fast-simplification), because remeshing costs grow with the input (539k vertices:
   26 s, against 2.6 s after decimating to 32k; docs/benchmarks.md).
+* a body under :data:`SPLIT_BELOW` vertices whose run missed, used as it is, is made again on
+  itself split at its edges' midpoints (:func:`split_working_mesh`, ``method == "split"``): the
+  same surface in smaller triangles, its own vertices first (the run pipeline decides when);
 * The result is repaired like any input (:func:`allorules.preparation.prepare_mesh`: merged
   vertices, degenerate and non-manifold faces dropped, oriented outward, largest part kept).
 
@@ -48,6 +51,10 @@ WORKING_VERTICES = 8000
 MIN_WORKING_VERTICES = 2000      # below this the labeller loses the neck (a 3k cow, issue 16)
 MAX_WORKING_VERTICES = 100000    # the paper's own limit; a 1,000-mode basis stays in minutes
 WORKING_METHOD = "remesh"        # or "decimate" (see make_working_mesh)
+# A run that misses on a body under this many vertices, used as it is, is made again on the body
+# split finer (split_working_mesh): its feet are a few triangles and its basis nearly its whole
+# spectrum (docs/working-mesh.md, "A coarse body split finer").
+SPLIT_BELOW = 1000
 DECIMATE_FIRST = 4               # above this many times the target, decimate before remeshing
 REMESH_ITERATIONS = 10
 FLAT_ANGLE = 170.0               # degrees: a working triangle with a wider angle has its long edge flipped
@@ -65,7 +72,7 @@ class WorkingMesh:
 
     vertices: np.ndarray
     faces: np.ndarray
-    method: str                       # "as-is", "remeshed", "decimated+remeshed", "decimated", "recorded"
+    method: str                       # "as-is", "split", "remeshed", "decimated+remeshed", "decimated", "recorded"
     source_vertices: int              # vertices of the user's body
     target_vertices: int              # the working size asked for
     seconds: float = 0.0
@@ -76,9 +83,17 @@ class WorkingMesh:
         """The body itself (no transfer needed: results are the body's own)."""
         return self.method == "as-is"
 
+    @property
+    def is_coarse_source(self) -> bool:
+        """The body itself, under :data:`SPLIT_BELOW` vertices (a missed run is made again split finer)."""
+        return self.is_source and len(self.vertices) < SPLIT_BELOW
+
     def describe(self) -> str:
         if self.is_source:
             return f"working mesh: the body itself ({self.source_vertices} vertices, at or below {self.target_vertices})"
+        if self.method == "split":
+            return (f"working mesh: {len(self.vertices)} vertices, the body's {self.source_vertices} split at its edges' "
+                    f"midpoints (the same surface)")
         if self.method == "recorded":
             return (f"working mesh: {len(self.vertices)} vertices at the points of the body its labels file recorded "
                     f"(the working mesh of the run that wrote it; target {self.target_vertices})")
@@ -226,6 +241,26 @@ def make_working_mesh(vertices: np.ndarray, faces: np.ndarray, target: int | Non
     quality = triangle_quality(working_vertices, working_faces)
     working = WorkingMesh(working_vertices, working_faces, method, len(vertices), target,
                           time.perf_counter() - started, quality)
+    log.info("%s", working.describe())
+    return working
+
+
+def split_working_mesh(vertices: np.ndarray, faces: np.ndarray) -> WorkingMesh:
+    """The body split at its edges' midpoints (``trimesh.remesh.subdivide``: each triangle into
+    four) until it has :data:`SPLIT_BELOW` vertices or more: the same surface, facets and sharp
+    edges included, the body's vertices first and unmoved (each binds to itself)."""
+    import time
+
+    import trimesh.remesh
+
+    started = time.perf_counter()
+    split_vertices, split_faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    while len(split_vertices) < SPLIT_BELOW:
+        split_vertices, split_faces = trimesh.remesh.subdivide(split_vertices, split_faces)
+    split_vertices = np.asarray(split_vertices, dtype=np.float64)
+    split_faces = np.asarray(split_faces, dtype=np.int64)
+    working = WorkingMesh(split_vertices, split_faces, "split", len(vertices), len(split_vertices),
+                          time.perf_counter() - started, triangle_quality(split_vertices, split_faces))
     log.info("%s", working.describe())
     return working
 
