@@ -427,6 +427,31 @@ def test_regions_go_to_every_input_vertex_and_come_back_from_them():
         pipeline.VertexRegions(regions.labels + 10, regions.region_names, "vertex groups").on(prepared)
 
 
+def _forced_misses(monkeypatch, missed) -> tuple[list[int], list[int]]:
+    """Runs through the pipeline's real ``scale`` and ``label``, spied on: the sizes of the bodies
+    scaled and labelled, in order; the n-th scale reports a miss with the message ``missed(n)``
+    (``None``: as it came)."""
+    from dataclasses import replace as replaced
+
+    real_scale, real_label = pipeline.scale, pipeline.label
+    calls: list[int] = []
+    labelled: list[int] = []
+
+    def scale(body, scaling, **options):
+        result = real_scale(body, scaling, **options)
+        calls.append(len(body.vertices))
+        message = missed(len(calls))
+        return result if message is None else replaced(result, converged=False, messages=[message])
+
+    def label(body, **options):
+        labelled.append(len(body.vertices))
+        return real_label(body, **options)
+
+    monkeypatch.setattr(pipeline, "scale", scale)
+    monkeypatch.setattr(pipeline, "label", label)
+    return calls, labelled
+
+
 @pytest.mark.parametrize("second_misses", [False, True])
 def test_a_run_that_misses_on_a_coarse_body_is_made_again_on_it_split_finer(monkeypatch, second_misses):
     """A body under SPLIT_BELOW vertices is used as it is; where its run misses, the run is made
@@ -434,27 +459,10 @@ def test_a_run_that_misses_on_a_coarse_body_is_made_again_on_it_split_finer(monk
     labeller found on the body as it comes (it labels once). The run kept is the one that
     converged, on every vertex of the user's body, its report naming the mesh it missed on; where
     both miss, the first stands and names the split."""
-    from dataclasses import replace as replaced
-
     from allorules.mesh.working import SPLIT_BELOW
 
     horse = generate_quadruped("horse", 600)
-    real_scale, real_label = pipeline.scale, pipeline.label
-    calls: list[int] = []
-    labelled: list[int] = []
-
-    def misses(body, scaling, **options):
-        result = real_scale(body, scaling, **options)
-        calls.append(len(body.vertices))
-        missed = len(calls) == 1 or second_misses
-        return replaced(result, converged=False, messages=[f"forced miss {len(calls)}"]) if missed else result
-
-    def segmenter_labels(body, **options):
-        labelled.append(len(body.vertices))
-        return real_label(body, **options)
-
-    monkeypatch.setattr(pipeline, "scale", misses)
-    monkeypatch.setattr(pipeline, "label", segmenter_labels)
+    calls, labelled = _forced_misses(monkeypatch, lambda n: f"forced miss {n}" if n == 1 or second_misses else None)
     scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 1.05)
     run = pipeline.run(Body(horse.vertices, horse.faces), scaling, modes=30, use_cache=False)
 
@@ -481,24 +489,8 @@ def test_a_run_that_misses_on_its_working_mesh_is_made_again_on_a_coarser_one(mo
     carried across; the run kept is the one that converged, carried back to every vertex of the
     user's body, and its report names the mesh it missed on. A size the user chose is never
     changed."""
-    from dataclasses import replace as replaced
-
     horse = generate_quadruped("horse", 3000)
-    real_scale, real_label = pipeline.scale, pipeline.label
-    calls: list[int] = []
-    labelled: list[int] = []
-
-    def first_misses(body, scaling, **options):
-        result = real_scale(body, scaling, **options)
-        calls.append(len(body.vertices))
-        return replaced(result, converged=False, messages=["forced miss"]) if len(calls) == 1 else result
-
-    def segmenter_labels(body, **options):
-        labelled.append(len(body.vertices))
-        return real_label(body, **options)
-
-    monkeypatch.setattr(pipeline, "scale", first_misses)
-    monkeypatch.setattr(pipeline, "label", segmenter_labels)
+    calls, labelled = _forced_misses(monkeypatch, lambda n: "forced miss" if n == 1 else None)
     monkeypatch.setattr(pipeline, "COARSER_WORKING", (1500,))
     monkeypatch.setattr("allorules.mesh.working.MIN_WORKING_VERTICES", 1000)   # a small, fast test
     scaling = pipeline.RulesetScaling(load_ruleset("quadruped"), 1.05)

@@ -254,7 +254,7 @@ def split_working_mesh(vertices: np.ndarray, faces: np.ndarray) -> WorkingMesh:
     import trimesh.remesh
 
     started = time.perf_counter()
-    split_vertices, split_faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    split_vertices, split_faces = vertices, faces
     while len(split_vertices) < SPLIT_BELOW:
         split_vertices, split_faces = trimesh.remesh.subdivide(split_vertices, split_faces)
     split_vertices = np.asarray(split_vertices, dtype=np.float64)

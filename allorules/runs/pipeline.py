@@ -979,12 +979,12 @@ def _split_working(prepared: PreparedMesh, work: Working, body: Body, result: Re
     split; split from the start, a goat at ×0.5 came out lumpy and a tiger was refused where as
     they come they converged, so the split is a second try, not the first."""
     finer = split_working_mesh(prepared.vertices, prepared.faces)
+    first = WorkingTry(int(len(work.mesh.vertices)), _first_message(result))
     log.warning("the run on the body as it is (%d vertices) missed its targets (%s); making it again on the body "
                 "split at its edges' midpoints (%d vertices, the same surface), with its regions",
-                len(work.mesh.vertices), _first_message(result), len(finer.vertices))
+                first.vertices, first.missed, len(finer.vertices))
     split = Working(finer, bind(prepared.vertices, finer.vertices, finer.faces))
     split_body = _framed(split.from_user(body), given=True)
-    tried = (WorkingTry(int(len(work.mesh.vertices)), _first_message(result)),)
     try:
         split_result = scale(split_body, scaling, registry=registry, modes=modes, use_cache=use_cache,
                              progress=progress)
@@ -993,7 +993,7 @@ def _split_working(prepared: PreparedMesh, work: Working, body: Body, result: Re
         return replace(work, also_tried=(WorkingTry(int(len(finer.vertices)), str(error)),)), body, result
     if split_result.converged:
         log.warning("made again on the body split finer (%d vertices), the run converged", len(finer.vertices))
-        return replace(split, also_tried=tried), split_body, split_result
+        return replace(split, also_tried=(first,)), split_body, split_result
     return replace(work, also_tried=(WorkingTry(int(len(finer.vertices)), _first_message(split_result)),)), body, result
 
 
