@@ -454,6 +454,23 @@ def test_real_elephant_is_refused_clearly():
             label_quadruped(body, forward=np.array(forward))
 
 
+@pytest.mark.parametrize("given", [False, True])
+def test_a_leg_that_cannot_be_followed_is_refused_with_how_to_settle_it(monkeypatch, generated, given):
+    """Where a leg cannot be followed up from one of the feet found (a voxel horse's blocks), the
+    feet may not be the animal's: one line that says how to settle it, the directions first
+    unless they were given."""
+    from allorules.segment import labeller
+
+    monkeypatch.setattr(labeller, "_follow_tip", lambda *arguments: None)
+    horse = generated["horse"]
+    directions = {"up": np.array([0.0, 1.0, 0.0]), "forward": np.array([0.0, 0.0, 1.0])} if given else {}
+    with pytest.raises(SegmentationError, match="followed up from one of the four feet") as refused:
+        label_quadruped(Body(horse.vertices, horse.faces), **directions)
+    message = str(refused.value)
+    assert "\n" not in message and "--patches 24" in message and "--segmentation FILE" in message
+    assert ("--up DIR and --forward DIR" in message) is not given
+
+
 def test_regions_no_quadruped_has_are_refused(generated):
     """The proportions check: a truth passes; the same with the head handed to the hind limbs, or
     the torso to the forelimbs, is refused with what is wrong."""

@@ -205,8 +205,9 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     # bent knee) to where it meets the body, and cut there across its upper part; on an animal
     # standing on its feet, across the ground's normal: at its armpit or groin (_follow_legs).
     ground = up if up is not None else choice.ground
-    legs, axes, leg_tops = _follow_legs(vertices, faces, graph, mass, choice, distance, ground)
-    _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair), body_plan.settle_feet(up, forward))
+    settle = body_plan.settle_feet(up, forward)
+    legs, axes, leg_tops = _follow_legs(vertices, faces, graph, mass, choice, distance, ground, settle)
+    _check_leg_pairs(mass, legs, (choice.fore_pair, choice.other_pair), settle)
     if body_plan.head_taken_for_a_leg(extremities, legs, feet, vertices, faces) is not None:
         raise SegmentationError(
             "a leg found carries a pair of ears or horns: a head was taken for a foot (legs stretched out beside "
@@ -270,7 +271,7 @@ LEG_RINGS = 90          # geodesic rings followed up each leg
 LEG_UPRIGHT = 30.0      # degrees: a leg of a standing animal within this of the ground's normal is cut level
 
 
-def _follow_legs(vertices, faces, graph, mass, choice, distance, ground=None):
+def _follow_legs(vertices, faces, graph, mass, choice, distance, ground, settle: str):
     """Legs of an animal in any pose: (per-vertex foot id, each leg's upper axis, each leg's top).
 
     From each foot, the rings of geodesic distance s run across the leg, also around a bent knee.
@@ -281,7 +282,8 @@ def _follow_legs(vertices, faces, graph, mass, choice, distance, ground=None):
     standing leg is swept upwards (:func:`_cut_legs`): it ends where it meets the body. On an
     animal standing on its feet (``ground``: the ground's normal), a leg whose upper part is within
     LEG_UPRIGHT of upright is swept along the normal: cut level at its armpit or groin, the
-    convention of docs/segmentation.md.
+    convention of docs/segmentation.md. A foot whose leg cannot be followed is refused with
+    ``settle`` (how to settle the feet).
     """
     feet = [int(f) for f in choice.fore_pair + choice.other_pair]
     axes, tops, cores, ring_centres = {}, {}, {}, {}
@@ -290,7 +292,8 @@ def _follow_legs(vertices, faces, graph, mass, choice, distance, ground=None):
         branch = int(np.argmin(distance[pair[0]] + distance[pair[1]] + 0.1 * (distance[other[0]] + distance[other[1]])))
         followed = _follow_tip(vertices, faces, graph, foot, distance[foot], 1.5 * float(distance[foot][branch]))
         if followed is None:
-            raise SegmentationError("a leg could not be followed up from its foot; the mesh does not look like a quadruped")
+            raise SegmentationError("a leg could not be followed up from one of the four feet found, so they may not be "
+                                    f"the animal's feet; {settle}")
         cores[foot], axis, ring_centres[foot] = followed[:3]
         if ground is not None and axis @ ground > np.cos(np.radians(LEG_UPRIGHT)):
             axis = np.asarray(ground, dtype=float)
