@@ -687,6 +687,19 @@ def test_unreachable_target_is_reported_not_hidden(animal, registry, tmp_path):
     assert result.mass_budget is None and result.settle() is None and result.as_dict()["settle"] is None
 
 
+def test_a_refusal_that_missed_its_trunk_and_more_says_where_the_mass_went(animal, registry, tmp_path, monkeypatch):
+    """A run that missed its rules and its trunk (a cartoon kitten at ×2) says where its rules leave
+    the mass in the refusal's line (``settle``); only a trunk-only miss is settled by a trunk rule."""
+    from allorules.runs import ruleset_run
+
+    monkeypatch.setattr(ruleset_run, "mass_budget", lambda ruleset, body, ratio: "the rules leave the chest ×2.5")
+    monkeypatch.setattr(ruleset_run, "_check_trunk_length", lambda *arguments: ["the trunk's length strayed"])
+    ruleset = load_ruleset(_contradictory_ruleset(tmp_path, registry), registry)
+    result = _run(animal, registry, ruleset, 1.1)
+    assert not result.converged and "trunk" in result.missed and "rule" in result.missed
+    assert result.settle().startswith("the rules leave the chest ×2.5; if its head or abdomen")
+
+
 def test_missing_regions_are_refused(animal, registry):
     body = animal.body()
     unlabelled = Body(body.vertices, body.faces)

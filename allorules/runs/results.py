@@ -198,7 +198,7 @@ class BiologyScalingResult(ScalingResult):
     trunk_length_exponent: float | None = None   # the trunk's length over the run (checked unless a rule measures it)
     trunk_shape: float | None = None   # the trunk's shape change beyond a stretch (measure.quality.trunk_shape_change)
     missed: tuple[str, ...] = ()     # the kind of each target missed, in order: MISSES
-    mass_budget: str | None = None   # a run that missed (not by its trunk): where the rules leave the mass (ruleset_run.mass_budget)
+    mass_budget: str | None = None   # a run that missed (not by its trunk alone): where the rules leave the mass (ruleset_run.mass_budget)
 
     def settle_trunk(self) -> str | None:
         """How to settle a run whose one miss is the trunk's length (every rule, the mass and every

@@ -674,7 +674,9 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
-    if messages and "trunk" not in result.missed:   # the trunk's verdict says it already
+    if messages and result.missed != ("trunk",):   # a trunk-only miss is settled by a trunk rule (settle_trunk)
+        # where the rules leave the mass, said in the refusal's one line (a cartoon kitten at ×2 missed
+        # its legs, its mass and its trunk and was told none of it: the trunk's verdict is not that line)
         result.mass_budget = mass_budget(ruleset, initial, ratio)
     result.messages.extend(messages)
     if messages:
