@@ -1040,6 +1040,39 @@ def test_a_head_cut_at_the_snouts_tip_makes_what_the_necks_cut_took_off_the_head
     assert 0 < neck < 2 * labeller.NECK_BAND * front and head > labeller.MIN_HEAD_CUT * area.sum()
 
 
+def test_where_no_neck_runs_a_radius_the_bend_whose_neck_narrows_wins_over_the_sharpest(posed, monkeypatch):
+    """Of the skeleton's bends, the sharpest whose neck narrows and runs MIN_NECK_LENGTH is taken;
+    where none runs that far, one that narrows still wins over a sharper bend whose "neck" never
+    narrows (a muzzle's): a blocky fox split twice, its neck 0.99 radii long, had its snout cut
+    for its head and the rest of its head labelled chest. Here the generated horse's sharpest bend
+    is given a long neck that does not narrow and every other a narrowing one just too short."""
+    from allorules.segment import labeller
+
+    animal = posed("dog", "stand")                           # two bends followed down a neck
+    follow, cuts = labeller._follow_neck, labeller._neck_cuts
+    necks, chosen = [], []
+
+    def followed(vertices, faces, adjacency, start, direction, step, span, shoulders=None):
+        neck = follow(vertices, faces, adjacency, start, direction, step, span, shoulders)
+        if neck is not None:
+            neck = (neck._replace(length=2.0, narrowing=0.0) if not necks else
+                    neck._replace(length=0.9 * labeller.MIN_NECK_LENGTH, narrowing=2 * labeller.MIN_NARROWING))
+            necks.append(neck)
+        return neck
+
+    def cut(*arguments):
+        chosen.append(cuts(*arguments))
+        return chosen[-1]
+
+    monkeypatch.setattr(labeller, "_follow_neck", followed)
+    monkeypatch.setattr(labeller, "_neck_cuts", cut)
+    label_quadruped(Body(animal.vertices, animal.faces))
+    assert len(necks) >= 2                                   # a sharpest bend and another
+    (throat, _), (base, _) = chosen[0]
+    assert not np.allclose(base, necks[0].base)             # not the sharpest bend's
+    assert any(np.allclose(base, neck.base) for neck in necks[1:])
+
+
 @pytest.mark.shared_meshes
 @pytest.mark.slow
 def test_a_pig_with_no_visible_neck_keeps_its_head_and_its_tail_at_any_resolution():

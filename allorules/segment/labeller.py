@@ -1039,6 +1039,13 @@ def _neck_cuts(vertices, faces, graph, rest, head_tip, forelimb):
     narrows = any(neck.narrowing >= MIN_NARROWING for _, _, neck in found)
     necks = [candidate for candidate in found
              if (candidate[2].narrowing > 0 or not narrows) and candidate[2].length >= MIN_NECK_LENGTH]
+    if not necks and narrows:
+        # No neck runs MIN_NECK_LENGTH, but one narrows: that bend, not the sharpest. A blocky fox
+        # split twice at its edges' midpoints (the same surface) bends 49° at its muzzle, whose
+        # "neck" never narrows, and 19° at the back of its head, whose neck narrows over 0.50 radii
+        # and runs 0.99 of them (1.04 on the fox split once): the muzzle won, and its head was
+        # labelled chest, ears and all.
+        necks = [candidate for candidate in found if candidate[2].narrowing >= MIN_NARROWING]
     chosen = necks[0] if necks else found[0]
     as_sharp = [candidate for candidate in found if turn[candidate[0]] >= BEND_TIE * turn[chosen[0]]]
     narrowing = [candidate for candidate in as_sharp if candidate[2].narrowing >= MIN_NARROWING]
