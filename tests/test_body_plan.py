@@ -296,7 +296,8 @@ def test_a_head_taken_for_a_leg_is_told_by_its_horns(preset, horn_length, horn_r
     foot and its head for that foot's leg (then its tail for its head, every cue sure of it). A
     leg carries no pair of ears or horns: the head and neck read as the nose's "leg" are found out
     (the horns 0.56-0.95 of it from the nose, twins unlike in prominence but alike in girth), the
-    four true legs are not, nor is a hornless head (nothing to tell it by)."""
+    four true legs are not, nor is a hornless head (nothing to tell it by). A horn the "leg"'s cut
+    left out counts where it lies within the leg's length of the "foot"."""
     from allorules.segment.labeller import vertex_graph
 
     def read(animal):
@@ -326,6 +327,11 @@ def test_a_head_taken_for_a_leg_is_told_by_its_horns(preset, horn_length, horn_r
     extremities = read(horned)
     legs, feet, head_as_leg, nose = legs_and_feet(horned, extremities)
     assert body_plan.head_taken_for_a_leg(extremities, head_as_leg, [nose], horned.vertices, horned.faces) == nose
+    # the "leg"'s cut across the head may leave one horn out (the leaping cat split twice at its
+    # edges' midpoints: one ear on its "leg", the other beside it, and its head found on its tail)
+    one_horn_out = head_as_leg.copy()
+    one_horn_out[list(horn_vertices(horned))[0]] = -1
+    assert body_plan.head_taken_for_a_leg(extremities, one_horn_out, [nose], horned.vertices, horned.faces) == nose
     assert body_plan.head_taken_for_a_leg(extremities, legs, feet, horned.vertices, horned.faces) is None
     plain = generate_quadruped(preset, 3000)
     extremities = read(plain)

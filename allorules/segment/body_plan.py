@@ -539,7 +539,7 @@ def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, verti
     for foot in (int(f) for f in feet):
         on_leg = legs == foot
         length = float(distance[foot][on_leg].max(initial=0.0))
-        tips = [int(t) for t in extremities.vertices if on_leg[t] and int(t) != foot
+        tips = [int(t) for t in extremities.vertices if (on_leg[t] or distance[foot][t] <= length) and int(t) != foot
                 and persistence[int(t)] >= MIRROR_PERSISTENCE
                 and distance[foot][t] >= LEG_FEATURE_REACH * length]
         for t1, t2 in itertools.combinations(tips, 2):
