@@ -1050,7 +1050,7 @@ def test_where_no_neck_runs_a_radius_the_bend_whose_neck_narrows_wins_over_the_s
     """Of the skeleton's bends, the sharpest whose neck narrows and runs MIN_NECK_LENGTH is taken;
     where none runs that far, one that narrows still wins over a sharper bend whose "neck" never
     narrows (a muzzle's): a blocky fox split twice, its neck 0.99 radii long, had its snout cut
-    for its head and the rest of its head labelled chest. Here the generated horse's sharpest bend
+    for its head and the rest of its head labelled chest. Here the generated dog's sharpest bend
     is given a long neck that does not narrow and every other a narrowing one just too short."""
     from allorules.segment import labeller
 
@@ -1074,7 +1074,7 @@ def test_where_no_neck_runs_a_radius_the_bend_whose_neck_narrows_wins_over_the_s
     monkeypatch.setattr(labeller, "_neck_cuts", cut)
     label_quadruped(Body(animal.vertices, animal.faces))
     assert len(necks) >= 2                                   # a sharpest bend and another
-    (throat, _), (base, _) = chosen[0]
+    _, (base, _) = chosen[0]                                # (head cut, neck cut)
     assert not np.allclose(base, necks[0].base)             # not the sharpest bend's
     assert any(np.allclose(base, neck.base) for neck in necks[1:])
 

@@ -528,18 +528,20 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
 
 
 def head_taken_for_a_leg(extremities: Extremities, legs: np.ndarray, feet, vertices, faces) -> int | None:
-    """The foot whose leg carries a head's features, or None: two tips on that leg shaped alike
-    (:func:`_shaped_alike`), alike in their distance from its foot, well apart, and
-    LEG_FEATURE_REACH of the leg's length or more from its foot (ears or horns, a head's length
-    behind its nose, where toes lie within a paw's width of the foot's tip). A cat leaping with
-    its fore legs stretched out, one beside its nose, had its nose taken for a foot, its head for
-    that foot's leg, and its tail for its head: its ears were 0.87 of that "leg" from its "foot"."""
+    """The foot whose leg carries a head's features, or None: two tips on that leg (or within its
+    length of its foot: the leg's cut may leave one out) shaped alike (:func:`_shaped_alike`),
+    alike in their distance from its foot, well apart, and LEG_FEATURE_REACH of the leg's length
+    or more from its foot (ears or horns, a head's length behind its nose, where toes lie within a
+    paw's width of the foot's tip). A cat leaping with its fore legs stretched out, one beside its
+    nose, had its nose taken for a foot, its head for that foot's leg, and its tail for its head:
+    its ears were 0.87 of that "leg" from its "foot"; split twice, the cut left one ear out."""
     distance = extremities.distance
     persistence = extremities.persistence_of
     for foot in (int(f) for f in feet):
         on_leg = legs == foot
         length = float(distance[foot][on_leg].max(initial=0.0))
-        tips = [int(t) for t in extremities.vertices if (on_leg[t] or distance[foot][t] <= length) and int(t) != foot
+        tips = [int(t) for t in extremities.vertices
+                if (on_leg[t] or distance[foot][t] <= length) and int(t) != foot
                 and persistence[int(t)] >= MIRROR_PERSISTENCE
                 and distance[foot][t] >= LEG_FEATURE_REACH * length]
         for t1, t2 in itertools.combinations(tips, 2):
