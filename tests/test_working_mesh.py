@@ -6,6 +6,8 @@ import pytest
 import trimesh
 
 from allorules.errors import MeshError
+from allorules.mesh.geometry import face_areas
+from allorules.mesh.transfer import bind
 from allorules.mesh.working import (
     MAX_WORKING_VERTICES,
     MIN_WORKING_VERTICES,
@@ -36,9 +38,6 @@ def test_a_coarse_body_split_finer_is_the_same_surface_with_its_own_vertices_fir
     assert working.method == "split" and not working.is_source and working.source_vertices == 162
     assert len(working.vertices) == 2562 >= SPLIT_BELOW and len(working.faces) == 16 * len(faces)
     assert np.array_equal(working.vertices[:len(vertices)], vertices)       # unmoved, in their order
-    from allorules.mesh.geometry import face_areas
-    from allorules.mesh.transfer import bind
-
     assert np.abs(bind(working.vertices, vertices, faces).offset).max() < 1e-12   # every vertex on the body
     assert np.isclose(face_areas(working.vertices, working.faces).sum(), face_areas(vertices, faces).sum())
     assert trimesh.Trimesh(working.vertices, working.faces, process=False).is_volume
@@ -55,8 +54,6 @@ def test_a_larger_body_is_remeshed_to_the_size_with_good_triangles(generated_hor
     assert quality["min_angle_median"] > 50 and quality["below_10"] < 0.001
     assert quality["min_angle_median"] > before["min_angle_median"]
     # the same surface: every working vertex lies on the body
-    from allorules.mesh.transfer import bind
-
     distance = np.linalg.norm(bind(working.vertices, body.vertices, body.faces).offset, axis=1)
     size = np.linalg.norm(np.ptp(body.vertices, axis=0))
     assert distance.max() < 2e-3 * size
@@ -82,8 +79,6 @@ def test_a_body_pinched_at_a_vertex_is_remeshed_with_the_pinch_split(monkeypatch
     the working mesh is the same surface."""
     import gpytoolbox
     import igl
-
-    from allorules.mesh.geometry import face_areas
 
     sphere = trimesh.creation.icosphere(subdivisions=5)                 # 10,242 vertices
     vertices, faces = np.array(sphere.vertices), np.array(sphere.faces)

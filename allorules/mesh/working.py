@@ -14,11 +14,12 @@ a mesh of a fixed, documented size and triangle quality made from the user's pre
   :data:`DECIMATE_FIRST` × ``target`` vertices it is first brought down to that many by quadric
   decimation (fast-simplification), because remeshing costs grow with the input (539k vertices:
   26 s, against 2.6 s after decimating to 32k; docs/benchmarks.md).
-* a body under :data:`SPLIT_BELOW` vertices whose run missed, used as it is, is made again on
-  itself split at its edges' midpoints (:func:`split_working_mesh`, ``method == "split"``): the
-  same surface in smaller triangles, its own vertices first (the run pipeline decides when);
 * The result is repaired like any input (:func:`allorules.preparation.prepare_mesh`: merged
   vertices, degenerate and non-manifold faces dropped, oriented outward, largest part kept).
+* A body under :data:`SPLIT_BELOW` vertices whose run missed, used as it is, is made again on
+  itself split at its edges' midpoints (:func:`split_working_mesh`, ``method == "split"``): the
+  same surface in smaller triangles, its own vertices first, nothing to repair (the run pipeline
+  decides when).
 
 :class:`WorkingRecord` keeps a working mesh as points on the body it was made from (each vertex
 a triangle of the body and its barycentric weights there), so that the same points can be taken
