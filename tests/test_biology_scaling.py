@@ -276,6 +276,9 @@ def test_a_refusal_says_which_mass_rules_strain_the_body_and_how_to_ease_them(an
     settle = refused.settle()
     assert settle.startswith(budget) and settle == refused.as_dict()["settle"]
     assert "--rule head-mass=1 --rule abdomen-mass=1" in settle
+    assert "--ruleset cartoon" in settle            # quadruped's own: the built-in ruleset that holds them
+    own = BiologyScalingResult(body, 0.5, ruleset="my-set.yaml", rules=rules, missed=("rule",), mass_budget=budget)
+    assert "--rule head-mass=1 --rule abdomen-mass=1" in own.settle() and "--ruleset cartoon" not in own.settle()
     assert "chest-girth" not in settle
     converged = BiologyScalingResult(body, 0.5, ruleset="quadruped", rules=rules, converged=True, mass_budget=budget)
     assert converged.settle() is None

@@ -18,7 +18,7 @@ from allorules.rules.overrides import override_exponents, parse_rule_overrides
 from allorules.rules.resolve import check_ruleset, load_ruleset
 from allorules.rules.schema import ruleset_schema
 
-BUILTINS = ("quadruped", "intraspecies", "neck-override", "isometric")
+BUILTINS = ("quadruped", "intraspecies", "neck-override", "isometric", "cartoon")
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -98,6 +98,27 @@ def test_neck_override_is_quadruped_plus_an_isometric_neck(registry):
     assert raised.rule("neck-length").exponent == 0.45
     assert "command line" in raised.rule("neck-length").source
     assert neck.rule("neck-length").exponent == pytest.approx(1 / 3)   # the original is unchanged
+
+
+def test_cartoon_is_quadruped_with_head_and_abdomen_mass_isometric(registry):
+    """The ruleset a refused cartoon is pointed to: quadruped's every rule, constraint and setting,
+    but the two mass rules at mass's isometric exponent."""
+    quadruped = load_ruleset("quadruped", registry)
+    cartoon = load_ruleset("cartoon", registry)
+    assert cartoon.extends == ("quadruped",)
+    held = {"head-mass", "abdomen-mass"}
+    assert [rule.id for rule in cartoon.rules] == [rule.id for rule in quadruped.rules]
+    for rule, theirs in zip(cartoon.rules, quadruped.rules):
+        if rule.id in held:
+            assert rule.exponent == registry.measures()["mass"].isometric_exponent == 1.0
+            assert (rule.region, rule.measure, rule.weight) == (theirs.region, theirs.measure, theirs.weight)
+        else:
+            assert rule == theirs
+    assert (cartoon.regions, cartoon.constraints, cartoon.solver, cartoon.body_mass) == \
+        (quadruped.regions, quadruped.constraints, quadruped.solver, quadruped.body_mass)
+    # what a refusal's --rule advice gives, and what the cartoon runs of docs/benchmarks.md were measured with
+    advised = override_exponents(quadruped, {name: 1.0 for name in held}, registry)
+    assert [(rule.id, rule.exponent) for rule in advised.rules] == [(rule.id, rule.exponent) for rule in cartoon.rules]
 
 
 def test_intraspecies_keeps_maturation_head_and_marks_assumptions(registry):

@@ -223,12 +223,14 @@ class BiologyScalingResult(ScalingResult):
         the chest and legs ×0.35 at ×0.5 (the real shared animals: ×0.39-0.46), and the chest folds:
         a generated big-headed dog and a neckless pig at ×0.5 were refused after every try, and with
         ``--rule head-mass=1 --rule abdomen-mass=1`` converge (74 s and 10 s; trunk shape 0.18 and
-        0.06).
+        0.06); for ``quadruped`` the built-in ruleset ``cartoon`` is that.
         None for a converged run or one the budget does not explain."""
         trunk = self.settle_trunk()
         if trunk or self.converged or not self.mass_budget:
             return trunk
         held = " ".join(f"--rule {rule.id}=1" for rule in self.rules if rule.measure == "mass" and rule.region is not None)
+        if self.ruleset == "quadruped":     # the built-in ruleset that is quadruped with those rules isometric
+            held = f"the built-in ruleset cartoon does: --ruleset cartoon, or {held}"
         return (f"{self.mass_budget}; if its head or abdomen is drawn larger than a real animal's (a cartoon), "
                 f"their rules ask the rest of the body for that: hold their mass isometric ({held}) or give a "
                 f"ruleset of your own (docs/rulesets.md), and look at the picture")
