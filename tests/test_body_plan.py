@@ -395,13 +395,10 @@ def test_a_flat_tail_behind_a_faint_bump_is_what_the_thickness_cue_measures(monk
     assert "thickness +1.00" in labelled.labelling.notes[0]
 
 
-def test_a_head_cut_at_its_trunk_takes_its_ears_back_from_the_chest(monkeypatch):
-    """A realistic elephant's head was cut where its trunk meets it: the trunk labelled head, the
-    head with its ears (hanging back behind the fore girdle's plane) chest, and so refused. The
-    generated horned elephant (horns for ears), its head cut by hand at the trunk (a fifth of its
-    head left as head, the rest and its horns chest): refused before; now the head is taken back to
-    just behind its horns (0.85 of the true head; 0.93 as the labeller cuts it itself), a neck
-    behind it, nothing of the abdomen taken."""
+def _elephant_cut_at_its_trunk(monkeypatch):
+    """The generated horned elephant (horns for ears) whose labeller cuts its head by hand at the
+    trunk: a fifth of its head left as head, the rest and its horns chest. Returns the animal, its
+    true names, its true head, its vertex areas and the geodesic distance from its nose."""
     from scipy.sparse.csgraph import dijkstra
 
     from allorules.segment import labeller
@@ -423,12 +420,58 @@ def test_a_head_cut_at_its_trunk_takes_its_ears_back_from_the_chest(monkeypatch)
 
     monkeypatch.setattr(labeller, "_split_torso", cut_at_the_trunk)
     assert mass[head & (from_nose < 0.4 * reach)].sum() < 0.25 * mass[head].sum()
-    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    return animal, names, head, mass, from_nose
+
+
+def _head_taken_back_whole(labelled, names, head, mass, share: float = 0.8) -> None:
     found = np.array(labelled.region_names)[labelled.labels]
     as_head = np.isin(found, ("head", "horns", "ears", "trunk"))
-    assert mass[head & as_head].sum() > 0.8 * mass[head].sum()
+    assert mass[head & as_head].sum() > share * mass[head].sum()
     assert labelled.region_mask("neck").any()
     assert not (as_head | (found == "neck"))[names == "abdomen"].any()
+
+
+def test_a_head_cut_at_its_trunk_takes_its_ears_back_from_the_chest(monkeypatch):
+    """A realistic elephant's head was cut where its trunk meets it: the trunk labelled head, the
+    head with its ears (hanging back behind the fore girdle's plane) chest, and so refused. The
+    generated horned elephant, its head cut by hand at the trunk (:func:`_elephant_cut_at_its_trunk`):
+    refused before; now the head is taken back to just behind its horns (0.85 of the true head;
+    0.93 as the labeller cuts it itself), a neck behind it, nothing of the abdomen taken."""
+    animal, names, head, mass, _ = _elephant_cut_at_its_trunk(monkeypatch)
+    _head_taken_back_whole(label_quadruped(Body(animal.vertices, animal.faces)), names, head, mass)
+
+
+def test_an_ear_followed_past_its_root_does_not_take_the_head_into_the_body(monkeypatch):
+    """A realistic elephant's ear hangs over its shoulder, and followed from its tip its root was
+    found as far back as its fore legs' tops where its twin's lay on its head: its head and neck
+    were taken back to there, ran on into its abdomen, were left as cut, and the elephant refused.
+    A mirrored pair's head ends at its nearer twin's root (``labeller.features_reach``). The
+    horned elephant cut at its trunk, one horn's root found at the back of its chest: labelled as
+    with both found right, but for the nearer root (0.80 of its true head for 0.85)."""
+    from allorules.segment import labeller
+
+    animal, names, head, mass, from_nose = _elephant_cut_at_its_trunk(monkeypatch)
+    chest = np.flatnonzero(names == "chest")
+    far_back = animal.vertices[chest[np.argmax(from_nose[chest])]]     # the chest's end behind the fore legs
+    follow, overshot = labeller._follow_tip, []
+
+    def followed_past_its_root(vertices, faces, graph, tip, field, span):
+        followed = follow(vertices, faces, graph, tip, field, span)
+        if followed is None or overshot or names[tip] != "head":    # a horn's tip (horns are the true head's)
+            return followed
+        overshot.append(tip)
+        core, axis, centre, length, root, rest = followed
+        return core, axis, far_back + (centre - root), length, far_back, rest
+
+    monkeypatch.setattr(labeller, "_follow_tip", followed_past_its_root)
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    assert overshot
+    _head_taken_back_whole(labelled, names, head, mass, share=0.75)    # to its other horn's root: 0.80
+    reach = labeller.features_reach
+    assert reach({1: 0.70, 2: 0.52, 3: 0.30}, [(1, 2)]) == 0.52            # one twin followed past its root
+    assert reach({1: 0.44, 2: 0.42, 3: 0.30}, [(1, 2)]) == 0.44            # twins alike: the farther
+    assert reach({1: 0.7, 3: 0.4}, [(1, 2)]) == 0.7                        # a twin not followed
+    assert reach({}, [(1, 2)]) == 0.0
 
 
 def _sphere_with_a_well_and_a_spike():

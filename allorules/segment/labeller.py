@@ -688,6 +688,27 @@ def _ring_head_and_neck(vertices, faces, graph, mass, labels, front, head_tip, a
     labels[neck] = NECK
 
 
+TWIN_ROOTS_APART = 1.25   # a mirrored pair's root reaches this far apart, or more: one was followed past its root
+
+
+def features_reach(reaches: dict[int, float], mirror_pairs) -> float:
+    """How far from the head tip the head reaches to hold its ears and horns, given each feature's
+    root reach (its root's distance from the tip plus its radius): the farthest, where a mirrored
+    pair whose reaches lie TWIN_ROOTS_APART or more apart counts at its nearer twin's. Twins' roots
+    lie alike (the generated elephant's horns 0.42 and 0.44), but a flap lying against the body is
+    followed past its root: a realistic elephant's ear hanging over its shoulder had its root found
+    0.70 from the trunk's tip, as far as its fore legs' tops, its twin's 0.52, and its head and neck
+    then ran on into its abdomen and it was refused. A twin that was not followed leaves the other
+    its own reach; 0 without features."""
+    paired: dict[int, float] = {}
+    for a, b in mirror_pairs:
+        if a in reaches and b in reaches:
+            near, far = sorted((reaches[a], reaches[b]))
+            counted = near if far >= TWIN_ROOTS_APART * near else far
+            paired[a], paired[b] = max(paired.get(a, 0.0), counted), max(paired.get(b, 0.0), counted)
+    return max((paired.get(tip, value) for tip, value in reaches.items()), default=0.0)
+
+
 def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_tip, distance) -> None:
     """Ears and horns grow from the head: when the head/neck cut left one of them in the neck (an
     animal with no visible neck, whose bend is the muzzle's), the head is taken back to just
@@ -704,9 +725,9 @@ def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_ti
     field = distance.get(head_tip)
     if field is None:
         return
-    reach = 0.0
     features = np.zeros(len(vertices), dtype=bool)
     twins = {t for pair in ends.head.mirror_pairs if (labels[list(pair)] == CHEST).all() for t in pair}
+    reaches = {}
     for tip in ends.head.features:
         if not (labels[tip] == NECK or tip in twins) or tip not in distance:
             continue
@@ -716,8 +737,9 @@ def _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_ti
         core, axis, centre, length, root, _ = followed
         radius = float(np.linalg.norm(root - centre))
         nearest = int(np.argmin(np.linalg.norm(vertices - root, axis=1)))
-        reach = max(reach, float(field[nearest]) + radius)
+        reaches[tip] = float(field[nearest]) + radius
         features |= core   # and the feature itself: a horn bent back reaches farther from the nose than its root
+    reach = features_reach(reaches, ends.head.mirror_pairs)
     if reach <= 0:
         return
     front = np.isin(labels, (HEAD, NECK, CHEST) if twins else (HEAD, NECK)) & ((field < reach) | features)
