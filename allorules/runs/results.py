@@ -231,7 +231,8 @@ class BiologyScalingResult(ScalingResult):
         held = " ".join(f"--rule {rule.id}=1" for rule in self.rules if rule.measure == "mass" and rule.region is not None)
         if self.ruleset == "quadruped":     # the built-in ruleset that is quadruped with those rules isometric
             held = f"the built-in ruleset cartoon does: --ruleset cartoon, or {held}"
-        return (f"{self.mass_budget}; if its head or abdomen is drawn larger than a real animal's (a cartoon), "
+        return (f"{self.mass_budget}; if its head or abdomen is a larger share of it than the mammals' these rules "
+                f"come from (a cartoon's head, a capybara's or an elephant's belly), "
                 f"their rules ask the rest of the body for that: hold their mass isometric ({held}) or give a "
                 f"ruleset of your own (docs/rulesets.md), and look at the picture")
 
