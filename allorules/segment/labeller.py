@@ -697,9 +697,9 @@ def features_reach(reaches: dict[int, float], mirror_pairs) -> float:
     pair whose reaches lie TWIN_ROOTS_APART or more apart counts at its nearer twin's. Twins' roots
     lie alike (the generated elephant's horns 0.42 and 0.44), but a flap lying against the body is
     followed past its root: a realistic elephant's ear hanging over its shoulder had its root found
-    0.70 from the trunk's tip, as far as its fore legs' tops, its twin's 0.52, and its head and neck
-    then ran on into its abdomen and it was refused. A twin that was not followed leaves the other
-    its own reach; 0 without features."""
+    as far back as its fore legs' tops (reach 0.70 from the trunk's tip, its twin's 0.52), and its
+    head and neck then ran on into its abdomen and it was refused. A twin that was not followed
+    leaves the other its own reach; 0 without features."""
     paired: dict[int, float] = {}
     for a, b in mirror_pairs:
         if a in reaches and b in reaches:
