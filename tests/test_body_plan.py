@@ -474,6 +474,53 @@ def test_an_ear_followed_past_its_root_does_not_take_the_head_into_the_body(monk
     assert reach({}, [(1, 2)]) == 0.0
 
 
+def test_a_feature_whose_rings_run_into_the_head_ends_near_its_tip(monkeypatch):
+    """A faceted bison's face slopes down into its hump. Its ears, followed from their tips, had
+    their rings run up its face and into the hump: a ring radius 0.99 of the tip's distance from
+    the nose (the features followed right on the shared and held-out animals: up to 0.22), a root
+    2.2 times as far from the nose as the tip (up to 1.17). The head was taken back to that "root"
+    and took its throat and hump (29 % of its surface); both ears alike, so the twins' rule could
+    not catch it. Such a feature now ends ``labeller.ROOT_BEYOND_TIP`` times its tip's distance
+    from the nose. The horned elephant cut at its trunk, given one more feature in the neck the
+    cut leaves, its rings as wide as its distance from the nose and their root at the back of its
+    chest: labelled as without it (before: its head ran into its abdomen, and it was refused)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from allorules.segment import labeller
+
+    animal, names, head, mass, from_nose = _elephant_cut_at_its_trunk(monkeypatch)
+    reach = from_nose[head].max()
+    neck = np.flatnonzero(head & (from_nose >= 0.4 * reach) & (from_nose < 0.5 * reach))
+    cheek = int(neck[np.argmax(animal.vertices[neck, 1])])   # on one side of the head
+    chest = np.flatnonzero(names == "chest")
+    far_back = animal.vertices[chest[np.argmax(from_nose[chest])]]
+    holds, follow, followed_cheek = labeller._head_holds_its_features, labeller._follow_tip, []
+
+    def with_a_cheek(vertices, faces, graph, mass, labels, ends, head_tip, distance):
+        assert labels[cheek] == labeller.NECK
+        ends.head.features[cheek] = "flat"
+        distance[cheek] = dijkstra(graph, indices=cheek)
+        try:
+            holds(vertices, faces, graph, mass, labels, ends, head_tip, distance)
+        finally:
+            del ends.head.features[cheek]
+
+    def into_the_head(vertices, faces, graph, tip, field, span):
+        followed = follow(vertices, faces, graph, tip, field, span)
+        if tip != cheek or followed is None:
+            return followed
+        followed_cheek.append(tip)
+        core, axis, _, length, _, rest = followed
+        radius = float(from_nose[cheek])          # as wide as its tip lies from the nose
+        return core, axis, far_back - radius * axis, length, far_back, rest
+
+    monkeypatch.setattr(labeller, "_head_holds_its_features", with_a_cheek)
+    monkeypatch.setattr(labeller, "_follow_tip", into_the_head)
+    labelled = label_quadruped(Body(animal.vertices, animal.faces))
+    assert followed_cheek
+    _head_taken_back_whole(labelled, names, head, mass)
+
+
 def _sphere_with_a_well_and_a_spike():
     """A unit sphere with a deep, narrow well pushed in at +z (the inside of an open mouth) and a
     spike pulled out at −z (a protrusion)."""
