@@ -674,9 +674,11 @@ def _finish(result: BiologyScalingResult, initial: Body, ruleset, registry, meas
     messages = [message for _, message in misses]
     result.missed = tuple(kind for kind, _ in misses)
     result.converged = not messages
-    if messages and result.missed != ("trunk",):   # a trunk-only miss is settled by a trunk rule (settle_trunk)
+    if messages:
         # where the rules leave the mass, said in the refusal's one line (a cartoon kitten at ×2 missed
-        # its legs, its mass and its trunk and was told none of it: the trunk's verdict is not that line)
+        # its legs, its mass and its trunk and was told none of it: the trunk's verdict is not that
+        # line); a trunk-only miss is settled by a trunk rule or, where the budget explains it, by
+        # holding the mass rules isometric (BiologyScalingResult.settle)
         result.mass_budget = mass_budget(ruleset, initial, ratio)
     result.messages.extend(messages)
     if messages:
