@@ -457,14 +457,27 @@ class FeetChoice:
 PAIR_LEFT_OUT_LIKENESS = 0.8   # the two tips of a pair left out this alike in prominence, or more, are twins
 
 
-def _pair_left_out(tips: _Tips, d, pair, other) -> tuple[float, float, float] | None:
+def _legs_across(offset: np.ndarray, tips, pair, other) -> bool:
+    """Two tips lie as a pair of feet does across the body's midplane (``offset``: each tip's offset
+    from it): mirrored (as the feet's sides term asks, 0.5 or more) and at least half as far apart
+    as the feet of the narrower pair chosen (``pair``, ``other``)."""
+    a, b = tips
+    narrower = min(abs(offset[pair[0]] - offset[pair[1]]), abs(offset[other[0]] - offset[other[1]]))
+    return _mirrored(offset[a], offset[b]) >= 0.5 and abs(offset[a] - offset[b]) >= 0.5 * narrower
+
+
+def _pair_left_out(tips: _Tips, d, pair, other, offset=None) -> tuple[float, float, float] | None:
     """A pair of tips no foot, twins (alike in prominence within PAIR_LEFT_OUT_LIKENESS, in AGD
     within MIRROR_AGD, no farther apart than 1.5 times the feet of a pair) and each more prominent
     than the least prominent foot chosen, as (their prominences, that foot's), or None. A pair that
     stands out more than a pair of feet is a pair of legs: a dog leaping with horns, horns and fore
     feet reaching forward to one plane, had them for its four feet and its hind legs (0.77 and
     0.77, the horn 0.34) for its head's ears. Ears and horns stand out less than legs, or are twins
-    unlike in prominence (a horned dog's 0.86 and 0.41); a nose and a tail tip are a body apart."""
+    unlike in prominence (a horned dog's 0.86 and 0.41); a nose and a tail tip are a body apart.
+    Where the body's side is known (``offset``: each tip's offset from its midplane, up and forward
+    given), a pair of legs lies on either side of it as feet do (:func:`_legs_across`): a low-poly
+    horse's tail of strands hanging to its hocks had two strands' tips for such a pair (0.79 and
+    0.67, a hoof 0.67), and the directions the refusal asks for did not settle it."""
     chosen = [int(x) for x in pair + other]
     least = float(min(tips.persistence[chosen]))
     spread = 1.5 * max(d[pair[0]][pair[1]], d[other[0]][other[1]])
@@ -472,7 +485,7 @@ def _pair_left_out(tips: _Tips, d, pair, other) -> tuple[float, float, float] | 
     for a, b in itertools.combinations(rest, 2):
         low, high = sorted((float(tips.persistence[a]), float(tips.persistence[b])))
         if (low > PAIR_LEFT_OUT_LIKENESS * high and low > least and abs(tips.agd[a] - tips.agd[b]) < MIRROR_AGD
-                and d[a][b] <= spread):
+                and d[a][b] <= spread and (offset is None or _legs_across(offset, (a, b), pair, other))):
             return float(tips.persistence[a]), float(tips.persistence[b]), least
     return None
 
@@ -515,13 +528,14 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
             f"cannot tell which four extremities are the feet (two guesses within a margin of {margin:.2f}); "
             f"{settle_feet(up, forward)}")
     feet = tips.vertices[[p, q, r, s]]
-    left_out = _pair_left_out(tips, d, (p, q), (r, s))
+    centroid = np.average(vertices, axis=0, weights=mass)
+    offset = None if side is None else (vertices[tips.vertices] - centroid) @ side
+    left_out = _pair_left_out(tips, d, (p, q), (r, s), offset)
     if left_out is not None:
         raise SegmentationError(
             f"cannot tell which four extremities are the feet: a pair left out (prominence {left_out[0]:.2f} and "
             f"{left_out[1]:.2f}) stands out more than a foot taken ({left_out[2]:.2f}), as only legs do (legs "
-            f"stretched out beside horns, as in a leap?); {settle_feet(up, forward)}")
-    centroid = np.average(vertices, axis=0, weights=mass)
+            f"stretched out beside horns, as in a leap, or a tail of strands?); {settle_feet(up, forward)}")
     ground = ground_plane(vertices[feet], vertices, centroid, up)
     return FeetChoice((int(feet[0]), int(feet[1])), (int(feet[2]), int(feet[3])), float(margin), ground,
                       dict(best.terms))

@@ -253,7 +253,13 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     _split_torso(vertices, faces, graph, mass, torso_axis, labels, ends, head_tip)
     _head_holds_its_features(vertices, faces, graph, mass, labels, ends, head_tip, distance)
     _cut_appendages(vertices, faces, graph, mass, labels, ends, head_tip, distance)
-    if body_plan.features_in(extremities, (labels == CHEST) | (labels == ABDOMEN), vertices, faces) is not None:
+    # Ears or horns left in the chest or abdomen: the head not found whole, or head and tail swapped.
+    # Given --forward, the ends are the user's: a pair at the tail end is the tail's (a low-poly
+    # horse's tail of strands, two of them left in the abdomen beside the one cut out as its tail).
+    torso = (labels == CHEST) | (labels == ABDOMEN)
+    if forward is not None:
+        torso &= ~ends.tail.region
+    if body_plan.features_in(extremities, torso, vertices, faces) is not None:
         raise SegmentationError(
             "a pair of ears or horns was labelled chest or abdomen: the head was not found whole (a trunk or a "
             f"muzzle taken for it?); give the regions with {body_plan.BY_HAND}")
