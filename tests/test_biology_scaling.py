@@ -211,7 +211,7 @@ def test_a_step_output_unmeasurable_only_at_the_next_step_stops_the_run_with_its
     assert closest.mass_ratio == pytest.approx(1.0, abs=1e-9)     # judged on the first step's start
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_a_stretched_run_reports_its_trunk_and_is_refused_beyond_the_tolerance(animal, registry, monkeypatch):
     """solver.trunk_stretch: on adds δ to every step; the run's verdict checks the trunk's length
     exponent (a trunk drawn out beyond 1/3 ± TRUNK_LENGTH_TOLERANCE is not converged, as the

@@ -178,6 +178,7 @@ def test_rule_checks_and_report_are_json_ready(generated_horse):
     assert all(abs(leg["tilt_degrees"]) < 1e-6 for leg in data["legs"]) and len(data["legs"]) == 4
 
 
+@pytest.mark.heavy
 def test_the_report_counts_the_flipped_faces_of_the_mesh_written(generated_horse, tmp_path):
     """Quality is measured on the working mesh; the faces written are the user's, carried from it,
     and the report counts their flips too (a transfer can fold what the working mesh did not)."""

@@ -452,7 +452,7 @@ def _forced_misses(monkeypatch, missed) -> tuple[list[int], list[int]]:
     return calls, labelled
 
 
-@pytest.mark.parametrize("second_misses", [False, True])
+@pytest.mark.parametrize("second_misses", [False, pytest.param(True, marks=pytest.mark.heavy)])
 def test_a_run_that_misses_on_a_coarse_body_is_made_again_on_it_split_finer(monkeypatch, second_misses):
     """A body under SPLIT_BELOW vertices is used as it is; where its run misses, the run is made
     again on the body split at its edges' midpoints (the same surface), with the regions the

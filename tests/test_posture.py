@@ -422,6 +422,7 @@ def test_nothing_that_moves_a_leg_alone_moves_its_junctions_rim(shared_meshes):
     assert slanted >= 1            # the case this guards: a rim spread over a fifth of a leg's field
 
 
+@pytest.mark.heavy
 def test_a_seated_animal_keeps_its_folded_legs_through_a_run():
     """The generated dog sitting, scaled at ×0.5 as the pipeline runs it (labels from the
     generator): before its folds were kept in each trial, Eq. 9 opened them by 12-16° and the run
