@@ -186,6 +186,11 @@ def _mirrored(a: float, b: float) -> float:
     return -a * b / max(0.5 * (a * a + b * b), 1e-30)
 
 
+def _midplane_offsets(tips: _Tips, vertices, centroid, side) -> np.ndarray:
+    """Each tip's offset from the body's midplane (through ``centroid``, across ``side``)."""
+    return (vertices[tips.vertices] - centroid) @ side
+
+
 def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hypothesis]:
     """Every pair of disjoint candidate pairs, with its cost (lowest first); ``side``, the body's
     unit side direction when its up and forward are given."""
@@ -194,7 +199,7 @@ def _feet_hypotheses(tips: _Tips, d, vertices, mass, up, side=None) -> list[_Hyp
     centroid = np.average(vertices, axis=0, weights=mass)
     if side is not None:     # each tip's height above the body's centre (of its height) and offset from its midplane
         above = np.clip((vertices[tips.vertices] - centroid) @ up / np.ptp(vertices @ up) / ABOVE, 0.0, 1.0)
-        offset = (vertices[tips.vertices] - centroid) @ side
+        offset = _midplane_offsets(tips, vertices, centroid, side)
     for four in itertools.combinations(range(n), 4):
         a, b, c, e = four
         pairings = [((a, b), (c, e)), ((a, c), (b, e)), ((a, e), (b, c))]
@@ -529,7 +534,7 @@ def choose_feet(extremities: Extremities, vertices, faces, mass, up=None, forwar
             f"{settle_feet(up, forward)}")
     feet = tips.vertices[[p, q, r, s]]
     centroid = np.average(vertices, axis=0, weights=mass)
-    offset = None if side is None else (vertices[tips.vertices] - centroid) @ side
+    offset = None if side is None else _midplane_offsets(tips, vertices, centroid, side)
     left_out = _pair_left_out(tips, d, (p, q), (r, s), offset)
     if left_out is not None:
         raise SegmentationError(
