@@ -482,12 +482,17 @@ def _pair_left_out(tips: _Tips, d, pair, other, offset=None) -> tuple[float, flo
     Where the body's side is known (``offset``: each tip's offset from its midplane, up and forward
     given), a pair of legs lies on either side of it as feet do (:func:`_legs_across`): a low-poly
     horse's tail of strands hanging to its hocks had two strands' tips for such a pair (0.79 and
-    0.67, a hoof 0.67), and the directions the refusal asks for did not settle it."""
+    0.67, a hoof 0.67), and the directions the refusal asks for did not settle it. Legs are tubes
+    (the feet's ``flat`` term): a pair of flat sheets, ring flatness beyond FLAT_LEG, is no pair of
+    legs (a held-out elephant's big ears, 4.5 and 7.6, stood out more than its hind feet, 0.32 and
+    0.31 against 0.28, and refused it)."""
     chosen = [int(x) for x in pair + other]
     least = float(min(tips.persistence[chosen]))
     spread = 1.5 * max(d[pair[0]][pair[1]], d[other[0]][other[1]])
     rest = [k for k in range(len(tips.vertices)) if k not in chosen]
     for a, b in itertools.combinations(rest, 2):
+        if max(tips.flatness[a], tips.flatness[b]) > FLAT_LEG:
+            continue
         low, high = sorted((float(tips.persistence[a]), float(tips.persistence[b])))
         if (low > PAIR_LEFT_OUT_LIKENESS * high and low > least and abs(tips.agd[a] - tips.agd[b]) < MIRROR_AGD
                 and d[a][b] <= spread and (offset is None or _legs_across(offset, (a, b), pair, other))):
