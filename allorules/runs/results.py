@@ -240,6 +240,10 @@ class BiologyScalingResult(ScalingResult):
                 f"look at the picture")
         if trunk:          # the trunk's verdict has said where the rules leave the mass
             return f"{trunk}; or, {ease}"
+        if any(self.mass_budget in message for message in self.messages):
+            # said once: a trunk drawn out and a distorted output (a held-out elephant at ×2, its
+            # chest and legs left ×3.0) had the budget in the trunk's verdict and again here
+            return ease[0].upper() + ease[1:]
         return f"{self.mass_budget}; {ease}"
 
     def details(self) -> dict:
