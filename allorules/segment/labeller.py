@@ -261,10 +261,10 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
         torso &= ~ends.tail.region
     if body_plan.features_in(extremities, torso, vertices, faces) is not None:
         # (without forward, a tail of strands is one such pair: told forward, the horse of strands is labelled)
-        settle = f"give the regions with {body_plan.BY_HAND}" if forward is not None else body_plan.SETTLE
+        settle_head = f"give the regions with {body_plan.BY_HAND}" if forward is not None else body_plan.SETTLE
         raise SegmentationError(
             "a pair of ears or horns was labelled chest or abdomen: the head was not found whole (a trunk or a "
-            f"muzzle taken for it, or a tail of strands?); {settle}")
+            f"muzzle taken for it, or a tail of strands?); {settle_head}")
     plan = body_plan.BodyPlan(
         fore=tuple(fore), hind=tuple(hind), fore_girdle=ends.head.girdle, hind_girdle=ends.tail.girdle,
         head_tip=head_tip, tail_tip=ends.tail.main_tip, head_features=tuple(t for pair in ends.head.mirror_pairs for t in pair),
