@@ -293,7 +293,7 @@ def test_a_refusal_says_which_mass_rules_strain_the_body_and_how_to_ease_them(an
     assert both.startswith(strained.settle_trunk() + "; or, ") and "--ruleset cartoon" in both
     assert budget not in both
     # a trunk drawn out and a distorted output: the budget, in the trunk's verdict, is said once
-    verdict = f"the trunk's length reached exponent 0.498, beyond 0.333 ± 0.1: the animal came out stretched ({budget})"
+    verdict = f"the trunk's length reached exponent 0.498, beyond 0.333 ± 0.1: stretched ({budget})"
     distorted = BiologyScalingResult(body, 2.0, ruleset="quadruped", rules=rules, missed=("trunk", "distorted"),
                                      trunk_length_exponent=0.498, mass_budget=budget, messages=[verdict])
     said = distorted.settle()

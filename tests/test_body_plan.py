@@ -638,8 +638,9 @@ def test_given_forward_a_pair_at_the_tail_end_is_no_head_left_in_the_body(monkey
     """Ears or horns left in the chest or abdomen refuse a labelling: the head was not found whole,
     or head and tail were swapped. Given --forward the ends are the user's, and a pair of tips at the
     tail end is the tail's (the low-poly horse's strands, two left in its abdomen beside the one cut
-    out as its tail; told forward alone, it is labelled). The generated horse, a pair "found" wherever the region asked about holds the
-    back of its rump: refused without forward, labelled right with it."""
+    out as its tail; told forward alone, it is labelled). The generated horse, a pair "found"
+    wherever the region asked about holds the back of its rump: refused without forward, labelled
+    right with it."""
     animal = generate_quadruped("horse", 3000)
     names = np.array(animal.region_names)[animal.labels]
     behind = np.flatnonzero((names == "abdomen") & (animal.vertices[:, 0] < animal.vertices[names == "hindlimbs", 0].min()))

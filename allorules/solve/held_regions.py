@@ -20,9 +20,9 @@ region is taken out of Eq. 9's hands instead, after the transform of each trial:
 * the small mismatch left at each opening (Eq. 9 made the chest and the head other than
   isometric; a step's worth, since each step starts from the part as the previous one held it)
   is spread over a *zone* of the neighbouring side, one opening radius wide along the surface:
-  a zone vertex z moves by w(z)·Σ_o b_zo (S − E)(o), the opening vertices' mismatches blended by
-  the inverse fourth power of their distance to z (:class:`BlendZone`), w falling smoothly from 1 at the
-  opening to 0 (smoothstep). A zone never reaches an appendage held before it
+  a zone vertex z moves by w(z)·Σ_o b_zo (S − E)(o), the opening vertices' mismatches blended
+  by the inverse fourth power of their distance to z (:class:`BlendZone`), w falling smoothly
+  from 1 at the opening to 0 (smoothstep). A zone never reaches an appendage held before it
   (it may blend the edge of the neck). An appendage is then exactly S, so its length and mass are
   isometric to the measures' precision (the neck to within what its edge shares with the zones);
   the zones lie in ruled regions, whose measures the solver meets on this very mesh.
