@@ -298,6 +298,11 @@ def test_a_refusal_says_which_mass_rules_strain_the_body_and_how_to_ease_them(an
                                      trunk_length_exponent=0.498, mass_budget=budget, messages=[verdict])
     said = distorted.settle()
     assert budget not in said and said.startswith("If its head or abdomen") and "--ruleset cartoon" in said
+    # the verdict second (a leg missed first): the refusal's line shows the first alone, so the budget is said
+    behind = BiologyScalingResult(body, 2.0, ruleset="quadruped", rules=rules, missed=("rule", "trunk"),
+                                  trunk_length_exponent=0.498, mass_budget=budget,
+                                  messages=["rule 'hindleg-length' reached exponent 0.371, target 0.336", verdict])
+    assert behind.settle().startswith(budget + "; if its head or abdomen")
 
 @pytest.mark.heavy
 def test_a_trunk_that_no_rule_lengthens_must_stay_isometric(animal, registry, monkeypatch, tmp_path):

@@ -240,9 +240,11 @@ class BiologyScalingResult(ScalingResult):
                 f"look at the picture")
         if trunk:          # the trunk's verdict has said where the rules leave the mass
             return f"{trunk}; or, {ease}"
-        if any(self.mass_budget in message for message in self.messages):
+        if self.messages and self.mass_budget in self.messages[0]:
             # said once: a trunk drawn out and a distorted output (a held-out elephant at ×2, its
-            # chest and legs left ×3.0) had the budget in the trunk's verdict and again here
+            # chest and legs left ×3.0) had the budget in the trunk's verdict and again here. Only
+            # the first message counts: the one-line refusal shows it alone (Run.missed), and a
+            # cartoon kitten whose trunk's verdict came second was told neither budget nor verdict
             return ease[0].upper() + ease[1:]
         return f"{self.mass_budget}; {ease}"
 
