@@ -675,6 +675,28 @@ def test_a_turn_back_that_distorts_a_feature_is_left_out(animal, registry, monke
     assert left and "looked distorted" in left[0]
 
 
+def test_a_turn_back_that_turns_the_head_further_is_not_a_turn_back():
+    """The held-out low-poly goat at ×2 (its neck 19 vertices, its head 47, most of both the bases
+    that bend): the parts' best similarities, fitted on so few, turned its head from 5.4° to 8.1°
+    as they were turned back. A candidate whose head ends further from the input's direction than
+    Eq. 9 left it, by more than TURN_SLACK and beyond TURN_SEEN, is judged worse than any miss;
+    within either, it is judged on its misses alone (a neck straightened, its head 0.5° → 1.8°)."""
+    from allorules.runs.ruleset_run import TURN_SEEN, TURN_SLACK, _TurnMisses
+
+    unturned = _TurnMisses(0.4, 0.3, 0, {}, 5.4)
+    further = unturned._replace(head_turn=8.1)
+    assert further.turned_further(unturned) and further.worst(unturned) == math.inf
+    assert "turned the head further (8.1°" in further.missing(unturned)
+    back = unturned._replace(head_turn=0.2)
+    assert not back.turned_further(unturned) and back.worst(unturned) == back.score
+    assert not unturned._replace(head_turn=5.4 + 0.9 * TURN_SLACK).turned_further(unturned)
+    straight = _TurnMisses(0.4, 0.3, 0, {}, 0.5)
+    assert not straight._replace(head_turn=0.9 * TURN_SEEN).turned_further(straight)
+    assert straight._replace(head_turn=1.1 * TURN_SEEN).turned_further(straight)
+    assert not _TurnMisses(0.4, 0.3, 0, {}, None)._replace(head_turn=30.0).turned_further(
+        _TurnMisses(0.4, 0.3, 0, {}, None))      # no head: nothing to judge
+
+
 def _contradictory_ruleset(tmp_path, registry):
     path = tmp_path / "contradiction.yaml"
     path.write_text(textwrap.dedent("""\
