@@ -314,9 +314,6 @@ def scale_with_ruleset(
                         alone = misses_of(head_alone)
                         if alone.worst(unturned) < moved_by.worst(unturned):
                             turned, moved_by, neck = head_alone, alone, False
-                    if moved_by.turned_further(unturned):
-                        log.debug("turned back, the head ends %.1f° from the input's direction, %.1f° as Eq. 9 left it",
-                                  moved_by.head_turn, unturned.head_turn)
                 except MeasurementError as error:
                     why = str(error)
                 if (not why and unturned.targets <= 1.0 and moved_by.targets > max(unturned.targets, LAST_STEP_MISS)
