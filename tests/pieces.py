@@ -1,4 +1,5 @@
-"""A toy quadruped modelled as game animals often are: closed pieces pushed into each other."""
+"""Toys modelled as game figures often are: closed pieces pushed into each other (a quadruped, and
+an upright bear that is none)."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,3 +32,15 @@ def pieces_quadruped() -> tuple[trimesh.Trimesh, dict[str, np.ndarray]]:
     for name, x in (("forelimbs", 0.45), ("hindlimbs", -0.45)):
         marks[name] = np.flatnonzero((v[:, 2] < 0.1) & (np.abs(v[:, 0] - x) < 0.1))
     return mesh, marks
+
+
+def upright_toy_bear() -> trimesh.Trimesh:
+    """A toy bear standing upright on its two legs, nine closed pieces: a trunk along Z, legs
+    down, arms out and down, a head on top with two ears and a snout at +X. Not a quadruped."""
+    pieces = [_capsule([0, 0, 0.7], [0, 0, 1.3], 0.35)]
+    pieces += [_capsule([0, y, 0.6], [0.1, y, 0.05], 0.13) for y in (-0.18, 0.18)]
+    pieces += [_capsule([0, side * 0.3, 1.35], [0, side * 0.75, 1.08], 0.1) for side in (-1, 1)]
+    pieces.append(trimesh.creation.icosphere(subdivisions=3, radius=0.3).apply_translation([0, 0, 1.85]))
+    pieces += [trimesh.creation.icosphere(subdivisions=2, radius=0.09).apply_translation([0, y, 2.12]) for y in (-0.2, 0.2)]
+    pieces.append(trimesh.creation.icosphere(subdivisions=2, radius=0.1).apply_translation([0.28, 0, 1.8]))
+    return trimesh.util.concatenate(pieces)

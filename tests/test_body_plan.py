@@ -702,6 +702,26 @@ def test_cues_that_disagree_refuse_instead_of_guessing():
     assert decision.head.area == 2.0 and decision.margin > 1.5
 
 
+def test_an_end_with_almost_nothing_beyond_its_legs_is_refused():
+    settle = body_plan.settle_feet(None, None)
+    with pytest.raises(SegmentationError, match="almost nothing of the body lies beyond") as refused:
+        body_plan.check_ends(_end(1.0, 0.2), _end(0.05, 0.1), settle)
+    assert "5.0%" in str(refused.value) and "--up" in str(refused.value) and "merge file" in str(refused.value)
+    with pytest.raises(SegmentationError, match="almost nothing"):        # whichever end it is
+        body_plan.check_ends(_end(0.05, 0.1), _end(1.0, 0.2), settle)
+    body_plan.check_ends(_end(1.0, 0.2), _end(0.17, 0.1), settle)          # the smallest real share seen
+
+
+def test_an_upright_toy_bear_is_refused_not_labelled():
+    from pieces import upright_toy_bear
+
+    from allorules.runs.pipeline import input_regions
+
+    # its arms and legs (or ears) make four feet, but nothing lies beyond its hips
+    with pytest.raises(SegmentationError, match="almost nothing of the body lies beyond"):
+        input_regions(upright_toy_bear(), working_vertices=3000)
+
+
 def test_toes_are_a_weak_cue_that_can_be_the_second_to_agree():
     # a fox: its bushy tail as heavy and as thick as its head, its ears at the second end
     fox = (_end(1.05, 0.30), _end(1.0, 0.25, mirror=True))

@@ -215,6 +215,7 @@ def _label_connected(vertices, faces, graph, mass, up, forward):
     top = body_plan.leg_top_distances(graph, legs, feet)
     first, second = body_plan.read_ends(extremities, top, graph, legs, leg_tops, choice.fore_pair, choice.other_pair,
                                         vertices, faces, mass, ground)
+    body_plan.check_ends(first, second, settle)
     ends = body_plan.decide_head(first, second, forward, vertices)
     fore, hind = list(ends.head.pair), list(ends.tail.pair)
     up_given = up is not None
