@@ -875,7 +875,7 @@ def _read_end(extremities, top, pair, girdle, centre, region, vertices, faces, m
 
 
 # Beyond each pair of legs a quadruped's body goes on: its head, neck and breast at one end, its
-# rump (and tail) at the other. The smaller end's surface over the larger's, over the 16 real
+# rump (and tail) at the other. The smaller end's surface over the larger's, over the 15 real
 # animals of shared/ labelled right, the generated horse, elephant, giraffe and dog in eight poses
 # and four cartoon styles in five: 0.17 (the Princeton 389) to 1.32 (a cartoon cow sitting, its
 # head the smaller end). An upright teddy bear, its ears and arms taken for the four feet, had
