@@ -397,6 +397,12 @@ def _settled(start: Body, solution, posture: str, last: bool, held: HeldRegions,
     return carry_choices(start, following)
 
 
+# A head turned back may end further from the input's direction than Eq. 9 left it by TURN_SLACK
+# degrees, or by any amount while it stays within TURN_SEEN of it (a neck straightened with it)
+TURN_SLACK = 1.0
+TURN_SEEN = 2.0
+
+
 class _TurnMisses(NamedTuple):
     """What an output misses, to judge the neck and the head turned back (:func:`_turned_back`):
     the targets' worst miss (the mass, the rules, the constraints) and the open regions' worst (held
@@ -441,12 +447,6 @@ class _TurnMisses(NamedTuple):
             return f"turned the head further ({self.head_turn:.1f}° from the input's direction, {unturned.head_turn:.1f}° unturned)"
         what = "a target" if self.targets >= self.opened else "an open region's isometric size"
         return f"missed {what} by {self.score:.1f}× its tolerance"
-
-
-# A head turned back may end further from the input's direction than Eq. 9 left it by TURN_SLACK
-# degrees, or by any amount while it stays within TURN_SEEN of it (a neck straightened with it)
-TURN_SLACK = 1.0
-TURN_SEEN = 2.0
 
 
 def _turned_back(start: Body, following: Body, held: HeldRegions, neck: bool = True) -> Body:
