@@ -268,6 +268,31 @@ def test_a_neck_tilted_with_its_head_is_turned_back(horse_held):
     assert np.allclose(held.turned_back(scaled), scaled, rtol=0, atol=1e-9 * np.abs(scaled).max())
 
 
+def test_a_neck_bent_back_along_its_length_returns_the_head_and_keeps_the_neck_whole(horse_held):
+    """Bent along its whole length instead of at its base (``faces`` given: as rigid as possible),
+    the neck swung 20° about its base, its base bending with it, is turned back: the head lands
+    where it was, the neck comes back to its input shape within a small share of its size (its
+    base zone was bent, so not exactly), and nothing but the neck and what it carries moves."""
+    body, held = horse_held
+    neck = held.parts[0]
+    base = body.vertices[neck.members[neck.near]].mean(axis=0)
+    zone = neck.base_zone
+    moved = body.vertices.copy()
+    swung = np.setdiff1d(np.union1d(neck.members, neck.children), zone.vertices)
+    nod = Rotation.from_euler("y", 20, degrees=True).as_matrix()
+    moved[swung] = (moved[swung] - base) @ nod.T + base
+    for vertex, weight in zip(zone.vertices, zone.weight):
+        bend = Rotation.from_euler("y", 20 * (1.0 - weight), degrees=True).as_matrix()
+        moved[vertex] = (moved[vertex] - base) @ bend.T + base
+    result = held.turned_back(moved, faces=body.faces)
+    assert np.allclose(result[neck.children], body.vertices[neck.children], atol=1e-9)   # the head, whole
+    size = np.ptp(body.vertices[neck.members], axis=0).max()
+    # (the bend its base had when swung is spread along the neck, not undone: 5.5 % at most)
+    assert np.abs(result[neck.members] - body.vertices[neck.members]).max() < 0.08 * size
+    rest = np.setdiff1d(np.arange(len(moved)), np.union1d(neck.members, neck.children))
+    assert np.array_equal(result[rest], moved[rest])
+
+
 def test_a_head_held_at_its_rules_size_is_turned_back_on_its_base(generated_horse):
     """The head, held at its rule's size, turns as Eq. 9 left it too (the cow 381's 1.7° at ×0.5
     with its neck turned back): a head swung 10° about its base, its base bent with it, is turned
