@@ -230,12 +230,8 @@ class HeldPart:
         if not len(self.far) and (not self.ruled or self.region in NEIGHBOUR_REGION):
             return
         zone = self.near_zone if self.ruled else self.base_zone
-        # turned as its shape beyond its base is (a ruled part's base blends into the neck)
-        fitted = ~np.isin(self.members, zone.vertices)
-        fitted = fitted if fitted.sum() >= MIN_VERTICES else np.ones(len(self.members), bool)
-        _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
-        back = Rotation.from_matrix(turn.T).as_rotvec()
-        pivot = vertices[self.members[self.near]].mean(axis=0)
+        back, pivot = self._turn_back_about(vertices, zone)
+        back = back.as_rotvec()
         moving = np.union1d(self.members, self.children)
         if carried is not None:       # whole, also where the zone reaches them
             moving, zone = np.union1d(moving, carried), zone.without(carried)
@@ -256,11 +252,7 @@ class HeldPart:
 
         if not len(self.far):
             return
-        fitted = ~np.isin(self.members, self.base_zone.vertices)
-        fitted = fitted if fitted.sum() >= MIN_VERTICES else np.ones(len(self.members), bool)
-        _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
-        back = Rotation.from_matrix(turn.T)
-        pivot = vertices[self.members[self.near]].mean(axis=0)
+        back, pivot = self._turn_back_about(vertices, self.base_zone)
         rest = np.array(vertices, dtype=float, copy=True)
         moving = np.union1d(self.children, carried if carried is not None else np.zeros(0, dtype=np.int64))
         moving = np.setdiff1d(moving, self.members)
@@ -275,6 +267,18 @@ class HeldPart:
         bent = igl.arap_solve(vertices[index[held]], data, local_rest)
         if np.all(np.isfinite(bent)):
             vertices[index[free]] = bent[free]
+        else:       # never a neck left behind its turned head: bent at its base instead
+            vertices[:] = rest
+            self.turn_back(vertices, carried)
+
+    def _turn_back_about(self, vertices: np.ndarray, zone: BlendZone) -> tuple[Rotation, np.ndarray]:
+        """(Qᵀ, the centre of the near opening): the turn that takes the part back to the direction
+        it had on the run's input, Q the rotation of the best similarity (Kabsch, area-weighted) of
+        its shape beyond ``zone`` (its base, which bends; all of it where that leaves too few)."""
+        fitted = ~np.isin(self.members, zone.vertices)
+        fitted = fitted if fitted.sum() >= MIN_VERTICES else np.ones(len(self.members), bool)
+        _, turn, _ = similarity_fit(self.reference[fitted], vertices[self.members[fitted]], self.weights[fitted])
+        return Rotation.from_matrix(turn.T), vertices[self.members[self.near]].mean(axis=0)
 
 
 @dataclass(frozen=True)
