@@ -343,11 +343,11 @@ def scale_with_ruleset(
                 if not why and moved_by.worst(unturned) > limit:
                     # the neck bent back along its whole length instead of at its base, from the last
                     # step as it was (the held-out goat at ×0.5, its neck 19 vertices: 1.1× a
-                    # tolerance at its base, 0.5× bent; the game donkey's head raised 26.8°: 9.9×, 4.3×)
+                    # tolerance at its base, 0.5× bent; the game donkey's head raised 26.8°: 9.4×, 4.9×)
                     try:
                         bent = _turned_back(current, following, held, bend=True)
                         along = misses_of(bent)
-                        log.debug("turned back at its base: %s; bent along its length: %s", moved_by, along)
+                        log.debug("the turn back so far: %s; the neck bent along its length: %s", moved_by, along)
                         bent_solution, bent_corrections, bent, along = refitted(kept, bent, along, True, True)
                     except MeasurementError as error:
                         log.debug("the neck bent back along its length could not be measured: %s", error)
